@@ -1,0 +1,27 @@
+# Two commands do all the set-up on a fresh machine (Python 3.11 + package registries):
+#   make demo   -> the end-to-end demo (creates/reuses the venv, installs, runs)
+#   make test   -> the whole test suite (creates/reuses the venv, installs, runs pytest)
+# VENV can point outside the clone (CI keys a cached venv on the dependency pins, see .ci/run).
+PYTHON ?= python3.11
+VENV ?= .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
+
+.PHONY: install demo test lint
+install: $(STAMP)
+
+$(STAMP): pyproject.toml
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e ".[dev]"
+	$(BIN)/python -m pip check
+	@rm -f $(VENV)/.installed-* && touch $@
+
+demo: install
+	MUJOCO_GL=egl $(BIN)/skillret-pipeline --config configs/pipeline/demo.yaml
+
+test: install
+	MUJOCO_GL=egl $(BIN)/python -m pytest -q tests
+
+lint: install
+	$(BIN)/ruff check . && $(BIN)/ruff format --check .

@@ -1,0 +1,1 @@
+"""Data stage: LeRobotDataset episodes -> memory-mapped TensorDict columns -> sub-trajectory windows."""

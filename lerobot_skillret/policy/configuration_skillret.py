@@ -1,0 +1,193 @@
+"""Configuration of the `skillret` policy: skill VAE + retrieval + latent policy.
+
+Defaults are the paper's (Table 7 of the seed appendix; GPU-scale). `configs/cpu/` holds a configuration small
+enough for a 2-core CPU. Batch size (16 in the paper) and step counts are `lerobot-train` options, not policy ones.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.configs.types import FeatureType, NormalizationMode
+from lerobot.optim.optimizers import AdamConfig
+
+STAGES = ("skills", "policy")
+RETRIEVAL_METRICS = ("l2", "kl")
+
+
+@PreTrainedConfig.register_subclass("skillret")
+@dataclass
+class SkillRetConfig(PreTrainedConfig):
+    """Skill-based imitation with retrieval from prior data.
+
+    Stage `skills` (Algorithm 1) trains the skill VAE on windows of the prior dataset (`--dataset.*` = prior).
+    Stage `policy` (Algorithm 2) starts from a stage-1 checkpoint (`--policy.path`), trains the latent policy on
+    target windows (`--dataset.*` = target) plus retrieved prior windows, and keeps fine-tuning the skill model on
+    prior and target windows.
+    """
+
+    # --- Which algorithm `lerobot-train` runs.
+    stage: str = "skills"  # "skills": pre-train the skill VAE (Alg. 1); "policy": latent policy + fine-tune (Alg. 2)
+
+    # --- Windows (sub-trajectories).
+    horizon: int = 10  # H: steps per skill window; the decoder runs H steps per policy query at rollout
+    history: int = 10  # F: observations the policy sees before a window (frame stack, the anchor included)
+
+    # --- Observation encoder (shared shape by the skill encoder/decoder/prior and the policy).
+    low_dim_mlp: tuple[int, ...] = (256,)  # MLP over the concatenated low-dim observations (state, env state)
+    vision_backbone: str = "resnet18"  # per-camera backbone, trained from scratch as in the seed's C.1
+    crop_shape: tuple[int, int] | None = (76, 76)  # random crop during training, centre crop at inference
+    spatial_softmax_keypoints: int = 32  # keypoints of the spatial-softmax pooling after each backbone
+
+    # --- Skill model (Table 7).
+    latent_dim: int = 64  # dimension of the skill latent z
+    lstm_layers: int = 2  # layers of every LSTM (skill encoder, decoder, policy)
+    encoder_lstm_hidden: int = 1000  # skill encoder: LSTM hidden units
+    encoder_mlp: tuple[int, ...] = (1024, 1024)  # skill encoder: MLP hidden sizes -> (mean, log-variance)
+    decoder_lstm_hidden: int = 1000  # closed-loop skill decoder: LSTM hidden units, input (z, o_t) each step
+    decoder_mlp: tuple[int, ...] = (1024, 1024)  # skill decoder: MLP hidden sizes -> tanh action
+    prior_mlp: tuple[int, ...] = (1024, 1024)  # learned prior p(z | o_0, o_{H-1}): hidden sizes
+    tc_mlp: tuple[int, ...] = (128, 128)  # temporal-prediction MLP on two encoder means: hidden sizes
+
+    # --- Latent policy (Table 7).
+    policy_lstm_hidden: int = 1000  # policy: LSTM hidden units over the F-step observation history
+    policy_mlp: tuple[int, ...] = ()  # policy: MLP hidden sizes after the LSTM (the seed names none)
+
+    # --- Losses.
+    kl_weight: float = 1e-5  # beta: weight of KL(q(z|window) || p(z|o_0, o_{H-1}))
+    tc_weight: float = 1e-6  # alpha: weight of the temporal-prediction loss (offset in raw steps)
+    tc_max_offset: int = 50  # the paired window is shifted by d in [-tc_max_offset, tc_max_offset] steps
+    retrieved_weight: float = 1.0  # gamma: weight of the retrieved windows' policy loss (0.15 for real tasks)
+    slowness_weight: float = 0.0  # implementation-only extra: means of windows within +-slowness_max_offset agree
+    slowness_max_offset: int = 5  # implementation-only extra: offset range of the slowness pair
+    inverse_dynamics_weight: float = 0.0  # implementation-only extra: (o_t, o_{t+H-1}) -> z head (code used 0.1)
+
+    # --- Optimisation (Table 7; batch size 16 is `--batch_size`).
+    skill_lr: float = 5e-4  # Adam learning rate of the skill VAE (encoder, decoder, prior)
+    tc_lr: float = 1e-4  # Adam learning rate of the temporal-prediction network
+    policy_lr: float = 1e-3  # Adam learning rate of the latent policy
+    grad_clip_norm: float = 10.0  # gradient clipping of all parameters
+
+    # --- Retrieval (Algorithm 2, lines 1-7; Table 7).
+    retrieval_num_prior: int | None = 250_000  # N: prior windows scored (None = every prior window)
+    retrieval_num_target: int = 2_500  # M: target windows encoded
+    retrieval_fraction: float = 0.10  # r: share of scored prior windows retrieved (0.05 for real tasks)
+    retrieval_metric: str = "l2"  # "l2" on encoder means, or "kl": symmetric KL of the Gaussians (A.2)
+
+    # --- Stage-2 data sources (the target dataset is `--dataset.*`).
+    prior_repo_id: str | None = None  # prior (play) dataset; None = the "no prior data" ablation
+    prior_root: str | None = None  # local folder of the prior dataset
+    retrieval_path: str | None = None  # retrieval file written by `skillret-retrieve`
+    use_retrieval: bool = True  # False = the paper's "no retrieval" ablation (target windows only)
+    finetune_skills: bool = True  # keep training the skill model in stage 2 (Alg. 2, line 17)
+
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {
+            "VISUAL": NormalizationMode.IDENTITY,
+            "STATE": NormalizationMode.MEAN_STD,
+            "ENV": NormalizationMode.MEAN_STD,
+            "ACTION": NormalizationMode.MIN_MAX,  # the decoder's tanh output lives in [-1, 1]
+        }
+    )
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self._validate_values()
+
+    def _validate_values(self) -> None:
+        """Reject values that would silently train something else than the method."""
+
+        def fail(name: str, value: object, why: str) -> None:
+            raise ValueError(f"skillret config: `{name}`={value!r} is invalid: {why}.")
+
+        if self.stage not in STAGES:
+            fail("stage", self.stage, f"choose one of {STAGES}")
+        if self.retrieval_metric not in RETRIEVAL_METRICS:
+            fail("retrieval_metric", self.retrieval_metric, f"choose one of {RETRIEVAL_METRICS}")
+        for name in (
+            "horizon",
+            "history",
+            "latent_dim",
+            "lstm_layers",
+            "encoder_lstm_hidden",
+            "decoder_lstm_hidden",
+            "policy_lstm_hidden",
+            "retrieval_num_target",
+        ):
+            if getattr(self, name) < 1:
+                fail(name, getattr(self, name), "it must be >= 1")
+        if self.tc_max_offset < 0 or self.slowness_max_offset < 0:
+            name = "tc_max_offset" if self.tc_max_offset < 0 else "slowness_max_offset"
+            fail(name, getattr(self, name), "an offset range must be >= 0")
+        for name in (
+            "kl_weight",
+            "tc_weight",
+            "retrieved_weight",
+            "slowness_weight",
+            "inverse_dynamics_weight",
+            "grad_clip_norm",
+        ):
+            if getattr(self, name) < 0:
+                fail(name, getattr(self, name), "loss weights and clipping norms must be >= 0")
+        for name in ("skill_lr", "tc_lr", "policy_lr"):
+            if getattr(self, name) <= 0:
+                fail(name, getattr(self, name), "a learning rate must be > 0")
+        if not 0.0 < self.retrieval_fraction <= 1.0:
+            fail("retrieval_fraction", self.retrieval_fraction, "r is a share of the candidates, in (0, 1]")
+        if self.retrieval_num_prior is not None and self.retrieval_num_prior < 1:
+            fail("retrieval_num_prior", self.retrieval_num_prior, "N must be >= 1, or None for every window")
+        for name in ("low_dim_mlp", "encoder_mlp", "decoder_mlp", "prior_mlp", "tc_mlp", "policy_mlp"):
+            if any(width < 1 for width in getattr(self, name)):
+                fail(name, getattr(self, name), "every hidden size must be >= 1")
+        if self.crop_shape is not None and min(self.crop_shape) < 1:
+            fail("crop_shape", self.crop_shape, "crop sizes must be >= 1 (or None for no crop)")
+
+    # --- LeRobot contract -------------------------------------------------------------------------------------
+
+    @property
+    def observation_delta_indices(self) -> list[int]:
+        """The F observations up to the anchor, then the H observations of the window (the decoder needs o_t)."""
+        return list(range(-(self.history - 1), self.horizon))
+
+    @property
+    def action_delta_indices(self) -> list[int]:
+        return list(range(self.horizon))
+
+    @property
+    def reward_delta_indices(self) -> None:
+        return None
+
+    def get_optimizer_preset(self) -> AdamConfig:
+        return AdamConfig(lr=self.skill_lr, grad_clip_norm=self.grad_clip_norm)
+
+    def get_scheduler_preset(self) -> None:
+        return None
+
+    def validate_features(self) -> None:
+        """The method needs actions and at least one observation stream; cameras must share one shape."""
+        if self.action_feature is None:
+            raise ValueError("skillret needs an `action` feature in the dataset (the skill VAE reconstructs actions).")
+        if len(self.action_feature.shape) != 1:
+            raise ValueError(
+                f"skillret needs a flat action vector; the dataset's `action` has shape "
+                f"{tuple(self.action_feature.shape)}."
+            )
+        if not (self.robot_state_feature or self.env_state_feature or self.image_features):
+            raise ValueError(
+                "skillret needs at least one observation feature: `observation.state`, "
+                "`observation.environment_state` or `observation.images.*`."
+            )
+        shapes = {tuple(ft.shape) for ft in self.image_features.values()}
+        if len(shapes) > 1:
+            raise ValueError(f"skillret expects all cameras to share one image shape; got {sorted(shapes)}.")
+        for key, ft in self.input_features.items():
+            if (
+                ft.type is FeatureType.VISUAL
+                and self.crop_shape is not None
+                and (self.crop_shape[0] > ft.shape[-2] or self.crop_shape[1] > ft.shape[-1])
+            ):
+                raise ValueError(
+                    f"`crop_shape`={self.crop_shape} is larger than camera `{key}` {tuple(ft.shape)}; set "
+                    "--policy.crop_shape to at most the image size (or null to disable cropping)."
+                )

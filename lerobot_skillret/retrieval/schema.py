@@ -1,0 +1,135 @@
+"""The retrieval file: what stage 2 (policy learning) consumes from the retrieval engine.
+
+A single safetensors file, written atomically:
+
+tensors
+    prior_index  int64   [K]     global frame index (LeRobotDataset `index`) of each retrieved window's anchor,
+                                 i.e. the first step o_t of its H-step sub-trajectory in the prior dataset
+    distance     float32 [K]     its distance to the nearest target latent (metric in `settings`)
+    latent       float32 [K, D]  its skill latent (encoder mean) at retrieval time
+metadata (all strings)
+    schema_version              "1"
+    settings                    JSON: metric, mode, fraction, num_prior, num_target, seed, ...
+    checkpoint_fingerprint      `checkpoint_fingerprint()` of the stage-1 checkpoint that encoded the windows
+    prior_fingerprint           `dataset_fingerprint()` of the prior dataset
+    target_fingerprint          `dataset_fingerprint()` of the target dataset
+
+Stage 2 recomputes the anchors' windows (F preceding observations, H steps) from the prior dataset itself; the
+file only says which windows. An empty selection (K = 0) is valid and means "no retrieval".
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import safe_open
+from safetensors.torch import load_file, save_file
+
+SCHEMA_VERSION = "1"
+
+
+@dataclass
+class RetrievalResult:
+    prior_index: torch.Tensor
+    distance: torch.Tensor
+    latent: torch.Tensor
+    settings: dict[str, Any] = field(default_factory=dict)
+    checkpoint_fingerprint: str = ""
+    prior_fingerprint: str = ""
+    target_fingerprint: str = ""
+
+    def __post_init__(self) -> None:
+        k = self.prior_index.shape[0]
+        if (
+            self.prior_index.ndim != 1
+            or self.distance.shape != (k,)
+            or self.latent.ndim != 2
+            or (self.latent.shape[0] != k)
+        ):
+            raise ValueError(
+                "RetrievalResult needs prior_index [K], distance [K] and latent [K, D]; got "
+                f"{tuple(self.prior_index.shape)}, {tuple(self.distance.shape)}, {tuple(self.latent.shape)}."
+            )
+
+    def __len__(self) -> int:
+        return int(self.prior_index.shape[0])
+
+    def save(self, path: str | Path) -> Path:
+        """Write to a temporary file beside `path`, then rename: a crash never leaves a half-written file."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tensors = {
+            "prior_index": self.prior_index.to(torch.int64).contiguous(),
+            "distance": self.distance.to(torch.float32).contiguous(),
+            "latent": self.latent.to(torch.float32).contiguous(),
+        }
+        metadata = {
+            "schema_version": SCHEMA_VERSION,
+            "settings": json.dumps(self.settings, sort_keys=True),
+            "checkpoint_fingerprint": self.checkpoint_fingerprint,
+            "prior_fingerprint": self.prior_fingerprint,
+            "target_fingerprint": self.target_fingerprint,
+        }
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+        os.close(fd)
+        try:
+            save_file(tensors, tmp, metadata=metadata)
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.remove(tmp)
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> RetrievalResult:
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(
+                f"Retrieval file {path} does not exist. Run `skillret-retrieve` first, or disable retrieval "
+                "(--policy.use_retrieval=false) for the paper's 'no retrieval' ablation."
+            )
+        with safe_open(str(path), framework="pt") as handle:
+            metadata = handle.metadata() or {}
+        version = metadata.get("schema_version")
+        if version != SCHEMA_VERSION:
+            raise ValueError(
+                f"{path} has retrieval schema version {version!r}; this skillret reads version "
+                f"{SCHEMA_VERSION!r}. Re-run `skillret-retrieve` to regenerate it."
+            )
+        tensors = load_file(str(path))
+        return cls(
+            prior_index=tensors["prior_index"],
+            distance=tensors["distance"],
+            latent=tensors["latent"],
+            settings=json.loads(metadata.get("settings", "{}")),
+            checkpoint_fingerprint=metadata.get("checkpoint_fingerprint", ""),
+            prior_fingerprint=metadata.get("prior_fingerprint", ""),
+            target_fingerprint=metadata.get("target_fingerprint", ""),
+        )
+
+    def check_compatible(
+        self,
+        *,
+        prior_fingerprint: str | None = None,
+        target_fingerprint: str | None = None,
+        checkpoint_fingerprint: str | None = None,
+    ) -> None:
+        """Refuse a file computed on other data or another skill checkpoint than the one being used."""
+        for name, expected in (
+            ("prior dataset", prior_fingerprint),
+            ("target dataset", target_fingerprint),
+            ("stage-1 checkpoint", checkpoint_fingerprint),
+        ):
+            key = {"prior dataset": "prior", "target dataset": "target", "stage-1 checkpoint": "checkpoint"}[name]
+            stored = getattr(self, f"{key}_fingerprint")
+            if expected is not None and stored != expected:
+                raise ValueError(
+                    f"The retrieval file was computed on a different {name} (fingerprint {stored or 'missing'}, "
+                    f"this run uses {expected}). Re-run `skillret-retrieve` with the {name} of this run."
+                )

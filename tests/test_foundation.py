@@ -1,0 +1,81 @@
+"""The package installs as a LeRobot plugin: light import, stock CLI discovery, config validation."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from importlib import metadata
+from pathlib import Path
+
+import pytest
+
+from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
+
+BIN = Path(sys.executable).parent
+
+
+def test_import_is_light() -> None:
+    """LeRobot imports every plugin at CLI start-up: it must not pull in the simulator."""
+    code = (
+        "import lerobot_skillret, lerobot_policy_skillret, sys; "
+        "heavy = [m for m in ('robosuite', 'mujoco') if m in sys.modules]; "
+        "assert not heavy, heavy"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_distribution_is_discoverable_by_lerobot() -> None:
+    """LeRobot 0.4.4 auto-imports installed distributions named `lerobot_policy_*` (underscores)."""
+    dist = metadata.distribution("lerobot_policy_skillret")
+    assert dist.metadata["Name"] == "lerobot_policy_skillret"
+
+
+def test_stock_train_cli_lists_skillret_options() -> None:
+    out = subprocess.run(
+        [str(BIN / "lerobot-train"), "--policy.type=skillret", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    for option in (
+        "--policy.horizon",
+        "--policy.history",
+        "--policy.kl_weight",
+        "--policy.tc_weight",
+        "--policy.retrieval_fraction",
+        "--policy.stage",
+    ):
+        assert option in out, f"{option} missing from lerobot-train --help"
+
+
+def test_defaults_are_the_papers() -> None:
+    cfg = SkillRetConfig(device="cpu")
+    assert (cfg.horizon, cfg.history, cfg.latent_dim) == (10, 10, 64)
+    assert (cfg.encoder_lstm_hidden, cfg.decoder_lstm_hidden, cfg.policy_lstm_hidden) == (1000, 1000, 1000)
+    assert cfg.encoder_mlp == cfg.decoder_mlp == cfg.prior_mlp == (1024, 1024) and cfg.tc_mlp == (128, 128)
+    assert (cfg.kl_weight, cfg.tc_weight, cfg.retrieved_weight) == (1e-5, 1e-6, 1.0)
+    assert (cfg.skill_lr, cfg.tc_lr, cfg.policy_lr) == (5e-4, 1e-4, 1e-3)
+    assert (cfg.retrieval_num_prior, cfg.retrieval_num_target, cfg.retrieval_fraction) == (250_000, 2_500, 0.1)
+    assert cfg.observation_delta_indices == list(range(-9, 10)) and cfg.action_delta_indices == list(range(10))
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("horizon", 0),
+        ("history", 0),
+        ("retrieval_fraction", 0.0),
+        ("retrieval_fraction", 1.5),
+        ("kl_weight", -1.0),
+        ("tc_weight", -1e-6),
+        ("retrieved_weight", -0.1),
+        ("policy_lr", 0.0),
+        ("stage", "pretrain"),
+        ("retrieval_metric", "cosine"),
+        ("encoder_mlp", (1024, 0)),
+        ("retrieval_num_prior", 0),
+    ],
+)
+def test_bad_values_name_the_field(field: str, value: object) -> None:
+    with pytest.raises(ValueError, match=f"`{field}`"):
+        SkillRetConfig(device="cpu", **{field: value})
