@@ -1,0 +1,1 @@
+"""Pipeline stage: the end-to-end runner (generate -> skills -> retrieval -> policy -> evaluation) and results."""

@@ -1,0 +1,143 @@
+"""The pipeline's configuration file (YAML, see `configs/pipeline/`): what to generate, train, retrieve and evaluate.
+
+Every training stage is a stock `lerobot-train` run; its options are written exactly as on the command line
+(`policy.horizon: 10` becomes `--policy.horizon=10`), so a config file reads like the commands it runs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+# Methods the pipeline knows: the method, its ablations (seed A.4 / Table 3) and LeRobot baselines (seed C.4).
+SKILLRET_METHODS = ("skillret", "no_retrieval", "all_retrieval", "random_retrieval", "no_prior")
+BASELINE_METHODS = ("act", "diffusion", "act_ft")
+METHODS = SKILLRET_METHODS + BASELINE_METHODS
+
+
+@dataclass
+class DataSpec:
+    """Kitchen data generated once per output folder and shared by every method."""
+
+    play_episodes: int = 150  # prior play trajectories (the seed's real-kitchen prior: 150 x ~2,000 steps)
+    play_steps: int = 2000  # steps per play trajectory
+    demo_episodes: int = 30  # successful target demonstrations per task
+    workers: int = 2  # generator worker processes
+    seed: int = 0  # generation seed (datasets are reproducible from it)
+    cameras: bool = False  # also record 84x84 agentview + eye-in-hand images
+
+
+@dataclass
+class TrainSpec:
+    """One `lerobot-train` run: its length, checkpoints and extra command-line options."""
+
+    steps: int = 1000
+    batch_size: int = 16
+    save_freq: int = 500  # checkpoints evaluated by the protocol are every `save_freq` steps and the last one
+    num_workers: int = 0  # dataloader workers (0 keeps 2-core machines responsive)
+    args: dict[str, Any] = field(default_factory=dict)  # e.g. {"policy.encoder_lstm_hidden": 256}
+
+
+@dataclass
+class RetrievalSpec:
+    """`skillret-retrieve` options shared by the retrieval-based methods (values as on its command line)."""
+
+    args: dict[str, Any] = field(default_factory=dict)  # e.g. {"fraction": 0.1, "metric": "l2"}
+
+
+@dataclass
+class EvalSpec:
+    """The seed's protocol (C.3): N rollouts per evaluated checkpoint, best checkpoint per seed."""
+
+    n_episodes: int = 100  # rollouts per checkpoint
+    batch_size: int = 10  # parallel (synchronous) envs per lerobot-eval run; <= n_episodes
+    max_checkpoints: int = 5  # evaluate at most this many checkpoints per run (the latest ones)
+    episode_length: int | None = None  # override the task's rollout length (None = the task's own)
+    args: dict[str, Any] = field(default_factory=dict)  # extra lerobot-eval options
+
+
+@dataclass
+class PipelineConfig:
+    output_dir: str = "outputs/pipeline"
+    tasks: list[str] = field(default_factory=lambda: ["cleaning_up"])
+    seeds: list[int] = field(default_factory=lambda: [0])
+    methods: list[str] = field(default_factory=lambda: ["skillret"])
+    results_dir: str | None = None  # where finished cells' raw eval JSONs are copied (e.g. benchmarks/results)
+    data: DataSpec = field(default_factory=DataSpec)
+    skills: TrainSpec = field(default_factory=TrainSpec)  # stage 1 (shared by tasks; one per seed)
+    policy: TrainSpec = field(default_factory=TrainSpec)  # stage 2 (one per method, task and seed)
+    retrieval: RetrievalSpec = field(default_factory=RetrievalSpec)
+    baselines: dict[str, TrainSpec] = field(default_factory=dict)  # act, diffusion, act_ft_prior, act_ft
+    eval: EvalSpec = field(default_factory=EvalSpec)
+
+    def __post_init__(self) -> None:
+        unknown = [m for m in self.methods if m not in METHODS]
+        if unknown:
+            raise ValueError(f"pipeline config: unknown methods {unknown}; choose from {list(METHODS)}.")
+        needed = {"act": ["act"], "diffusion": ["diffusion"], "act_ft": ["act_ft_prior", "act_ft"]}
+        for method in self.methods:
+            for key in needed.get(method, []):
+                if key not in self.baselines:
+                    raise ValueError(
+                        f"pipeline config: method `{method}` needs a `baselines.{key}` section "
+                        "(its lerobot-train options)."
+                    )
+        if not self.tasks or not self.seeds:
+            raise ValueError("pipeline config: `tasks` and `seeds` must each name at least one entry.")
+        if self.eval.batch_size > self.eval.n_episodes:
+            raise ValueError(
+                f"pipeline config: `eval.batch_size`={self.eval.batch_size} exceeds `eval.n_episodes`="
+                f"{self.eval.n_episodes}; lerobot-eval needs batch_size <= n_episodes."
+            )
+        for spec_name in ("skills", "policy"):
+            spec = getattr(self, spec_name)
+            if spec.steps < 1 or spec.save_freq < 1 or spec.batch_size < 1:
+                raise ValueError(f"pipeline config: `{spec_name}` needs steps, save_freq and batch_size >= 1.")
+
+    @classmethod
+    def from_yaml(cls, path: str | Path, overrides: dict[str, Any] | None = None) -> PipelineConfig:
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"pipeline config {path} not found (see configs/pipeline/ for examples).")
+        raw = yaml.safe_load(path.read_text()) or {}
+        for dotted, value in (overrides or {}).items():
+            _set_dotted(raw, dotted, value)
+        return _build(cls, raw, where=str(path))
+
+
+def _set_dotted(tree: dict[str, Any], dotted: str, value: Any) -> None:
+    *parents, leaf = dotted.split(".")
+    for key in parents:
+        tree = tree.setdefault(key, {})
+    tree[leaf] = value
+
+
+def _build(cls: type, raw: dict[str, Any], where: str) -> Any:
+    """Build a dataclass from nested dicts, refusing unknown keys so typos do not pass silently."""
+    names = {f.name: f for f in fields(cls)}
+    unknown = sorted(set(raw) - set(names))
+    if unknown:
+        raise ValueError(f"{where}: unknown keys {unknown}; allowed: {sorted(names)}.")
+    kwargs: dict[str, Any] = {}
+    for name, value in raw.items():
+        kind = (
+            {
+                "data": DataSpec,
+                "skills": TrainSpec,
+                "policy": TrainSpec,
+                "retrieval": RetrievalSpec,
+                "eval": EvalSpec,
+            }.get(name)
+            if cls is PipelineConfig
+            else None
+        )
+        if kind is not None:
+            kwargs[name] = _build(kind, value or {}, f"{where}:{name}")
+        elif cls is PipelineConfig and name == "baselines":
+            kwargs[name] = {k: _build(TrainSpec, v or {}, f"{where}:baselines.{k}") for k, v in (value or {}).items()}
+        else:
+            kwargs[name] = value
+    return cls(**kwargs)

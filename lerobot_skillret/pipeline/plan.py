@@ -1,0 +1,262 @@
+"""The pipeline's stage graph: which commands produce which artifacts, per method, task and seed.
+
+Layout of the output folder (every path is an artifact; a stage is skipped when its artifact exists):
+
+    data/play, data/demos_<task>                      LeRobotDatasets (skillret-generate)
+    skills/prior_seed<s>, skills/target_<task>_seed<s>  stage-1 runs (lerobot-train, stage=skills)
+    retrieval/<task>_<mode>_seed<s>.safetensors        retrieval files (skillret-retrieve), reports beside them
+    train/<method>/<task>/seed<s>                      stage-2 / baseline runs (lerobot-train)
+    eval/<method>/<task>/seed<s>/step<k>               lerobot-eval outputs (eval_info.json, videos/)
+    cells/<method>/<task>/seed<s>.json                 the protocol's summary of one (method, task, seed) cell
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from lerobot_skillret.pipeline.config import PipelineConfig, TrainSpec
+from lerobot_skillret.pipeline.stages import Stage
+
+BIN = Path(sys.executable).parent
+PRETRAINED = Path("checkpoints/last/pretrained_model")
+
+# The retrieval each skillret variant consumes: None = no retrieval file (the stage-2 run retrieves nothing).
+RETRIEVAL_MODE = {
+    "skillret": "default",
+    "all_retrieval": "all",
+    "random_retrieval": "random",
+    "no_retrieval": None,
+    "no_prior": None,
+}
+RETRIEVAL_ARGS = {"default": {}, "all": {"mode": "all"}, "random": {"mode": "random"}}
+
+
+def cli_args(options: dict[str, Any]) -> list[str]:
+    """{"policy.horizon": 10} -> ["--policy.horizon=10"] (None -> null, booleans lower-case, lists as JSON)."""
+    out = []
+    for key, value in options.items():
+        if value is None:
+            text = "null"
+        elif isinstance(value, bool):
+            text = str(value).lower()
+        elif isinstance(value, list | tuple):
+            text = "[" + ",".join(str(v) for v in value) + "]"
+        else:
+            text = str(value)
+        out.append(f"--{key}={text}")
+    return out
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One entry of the results table before seed aggregation."""
+
+    method: str
+    task: str
+    seed: int
+
+
+class Plan:
+    """Builds the stages of a pipeline config; pure path and command arithmetic, no side effects."""
+
+    def __init__(self, cfg: PipelineConfig) -> None:
+        self.cfg = cfg
+        self.root = Path(cfg.output_dir).resolve()
+
+    # --- data ---------------------------------------------------------------------------------------------
+    def play_root(self) -> Path:
+        return self.root / "data" / "play"
+
+    def demos_root(self, task: str) -> Path:
+        return self.root / "data" / f"demos_{task}"
+
+    @staticmethod
+    def repo_id(root: Path) -> str:
+        return f"local/kitchen_{root.name}"
+
+    def data_stages(self) -> list[Stage]:
+        d = self.cfg.data
+        common = ["--seed", str(d.seed), "--workers", str(d.workers), *(["--cameras"] if d.cameras else [])]
+        play = Stage("data/play", self.play_root())
+        play.command = [
+            str(BIN / "skillret-generate"),
+            "play",
+            "--root",
+            str(play.partial),
+            "--repo-id",
+            self.repo_id(play.output),
+            "--episodes",
+            str(d.play_episodes),
+            "--steps-per-episode",
+            str(d.play_steps),
+            *common,
+        ]
+        stages = [play] if self.needs_prior() else []
+        for task in self.cfg.tasks:
+            demos = Stage(f"data/demos_{task}", self.demos_root(task))
+            demos.command = [
+                str(BIN / "skillret-generate"),
+                "demos",
+                "--task",
+                task,
+                "--root",
+                str(demos.partial),
+                "--repo-id",
+                self.repo_id(demos.output),
+                "--episodes",
+                str(d.demo_episodes),
+                *common,
+            ]
+            stages.append(demos)
+        return stages
+
+    def needs_prior(self) -> bool:
+        return any(m not in ("no_prior", "act", "diffusion") for m in self.cfg.methods)
+
+    # --- training -----------------------------------------------------------------------------------------
+    def _train(self, name: str, output: Path, dataset_root: Path, spec: TrainSpec, seed: int, head: list[str]) -> Stage:
+        stage = Stage(name, output)
+        stage.command = [
+            str(BIN / "lerobot-train"),
+            *head,
+            f"--dataset.repo_id={self.repo_id(dataset_root)}",
+            f"--dataset.root={dataset_root}",
+            f"--output_dir={stage.partial}",
+            f"--job_name={name.replace('/', '_')}",
+            f"--steps={spec.steps}",
+            f"--batch_size={spec.batch_size}",
+            f"--save_freq={spec.save_freq}",
+            f"--num_workers={spec.num_workers}",
+            f"--seed={seed}",
+            "--eval_freq=0",
+            "--wandb.enable=false",
+            "--policy.push_to_hub=false",
+            *cli_args(spec.args),
+        ]
+        return stage
+
+    def skills_dir(self, seed: int, task: str | None = None) -> Path:
+        """Stage-1 run on the prior (shared by tasks), or on one task's demos (the "no prior data" ablation)."""
+        name = f"prior_seed{seed}" if task is None else f"target_{task}_seed{seed}"
+        return self.root / "skills" / name
+
+    def skills_stage(self, seed: int, task: str | None = None) -> Stage:
+        out = self.skills_dir(seed, task)
+        data = self.play_root() if task is None else self.demos_root(task)
+        head = ["--policy.type=skillret", "--policy.stage=skills"]
+        return self._train(f"skills/{out.name}", out, data, self.cfg.skills, seed, head)
+
+    def retrieval_path(self, task: str, mode: str, seed: int) -> Path:
+        return self.root / "retrieval" / f"{task}_{mode}_seed{seed}.safetensors"
+
+    def retrieval_stage(self, task: str, mode: str, seed: int) -> Stage:
+        out = self.retrieval_path(task, mode, seed)
+        stage = Stage(f"retrieval/{out.stem}", out)
+        options = {**self.cfg.retrieval.args, **RETRIEVAL_ARGS[mode], "seed": seed}
+        stage.command = [
+            str(BIN / "skillret-retrieve"),
+            "--checkpoint",
+            str(self.skills_dir(seed) / PRETRAINED),
+            "--prior-repo-id",
+            self.repo_id(self.play_root()),
+            "--prior-root",
+            str(self.play_root()),
+            "--target-repo-id",
+            self.repo_id(self.demos_root(task)),
+            "--target-root",
+            str(self.demos_root(task)),
+            "--output",
+            str(stage.partial),
+            "--report-dir",
+            str(out.with_suffix("")) + "_report",
+            *[f"--{k.replace('_', '-')}={v}" for k, v in options.items()],
+        ]
+        return stage
+
+    def train_dir(self, cell: Cell) -> Path:
+        return self.root / "train" / cell.method / cell.task / f"seed{cell.seed}"
+
+    def act_prior_stage(self, seed: int) -> Stage:
+        out = self.root / "train" / "act_ft_prior" / f"seed{seed}"
+        spec = self.cfg.baselines["act_ft_prior"]
+        return self._train(f"train/act_ft_prior/seed{seed}", out, self.play_root(), spec, seed, ["--policy.type=act"])
+
+    def train_stage(self, cell: Cell) -> Stage:
+        out, name, target = (
+            self.train_dir(cell),
+            f"train/{cell.method}/{cell.task}/seed{cell.seed}",
+            self.demos_root(cell.task),
+        )
+        if cell.method in ("act", "diffusion"):
+            head = [f"--policy.type={cell.method}"]
+            return self._train(name, out, target, self.cfg.baselines[cell.method], cell.seed, head)
+        if cell.method == "act_ft":
+            prior_ckpt = self.root / "train" / "act_ft_prior" / f"seed{cell.seed}" / PRETRAINED
+            head = [f"--policy.path={prior_ckpt}"]
+            return self._train(name, out, target, self.cfg.baselines["act_ft"], cell.seed, head)
+        mode = RETRIEVAL_MODE[cell.method]
+        if cell.method == "no_prior":
+            head = [
+                f"--policy.path={self.skills_dir(cell.seed, cell.task) / PRETRAINED}",
+                "--policy.stage=policy",
+                "--policy.use_retrieval=false",
+                "--policy.prior_repo_id=null",
+                "--policy.prior_root=null",
+            ]
+        else:
+            head = [
+                f"--policy.path={self.skills_dir(cell.seed) / PRETRAINED}",
+                "--policy.stage=policy",
+                f"--policy.prior_repo_id={self.repo_id(self.play_root())}",
+                f"--policy.prior_root={self.play_root()}",
+            ]
+            if mode is None:
+                head.append("--policy.use_retrieval=false")
+            else:
+                head += [
+                    "--policy.use_retrieval=true",
+                    f"--policy.retrieval_path={self.retrieval_path(cell.task, mode, cell.seed)}",
+                ]
+        return self._train(name, out, target, self.cfg.policy, cell.seed, head)
+
+    # --- evaluation ---------------------------------------------------------------------------------------
+    def checkpoints(self, cell: Cell) -> list[tuple[int, Path]]:
+        """The run's saved checkpoints as (step, pretrained_model dir), latest `max_checkpoints` of them."""
+        ckpts = sorted(
+            (int(p.name), p / "pretrained_model")
+            for p in (self.train_dir(cell) / "checkpoints").iterdir()
+            if p.name.isdigit() and (p / "pretrained_model").is_dir()
+        )
+        return ckpts[-self.cfg.eval.max_checkpoints :]
+
+    def eval_dir(self, cell: Cell, step: int) -> Path:
+        return self.root / "eval" / cell.method / cell.task / f"seed{cell.seed}" / f"step{step}"
+
+    def eval_stage(self, cell: Cell, step: int, checkpoint: Path) -> Stage:
+        out = self.eval_dir(cell, step)
+        stage = Stage(f"eval/{cell.method}/{cell.task}/seed{cell.seed}/step{step}", out)
+        e = self.cfg.eval
+        options: dict[str, Any] = {
+            "policy.path": checkpoint,
+            "env.type": "panda_kitchen",
+            "env.task": cell.task,
+            "eval.n_episodes": e.n_episodes,
+            "eval.batch_size": e.batch_size,
+            "eval.use_async_envs": False,
+            "seed": 100_000 + cell.seed,
+            "output_dir": stage.partial,
+            **e.args,
+        }
+        if e.episode_length is not None:
+            options["env.episode_length"] = e.episode_length
+        stage.command = [str(BIN / "lerobot-eval"), *cli_args(options)]
+        return stage
+
+    def cell_path(self, cell: Cell) -> Path:
+        return self.root / "cells" / cell.method / cell.task / f"seed{cell.seed}.json"
+
+    def cells(self) -> list[Cell]:
+        return [Cell(m, t, s) for s in self.cfg.seeds for t in self.cfg.tasks for m in self.cfg.methods]

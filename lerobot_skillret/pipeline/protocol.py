@@ -1,0 +1,57 @@
+"""The seed's evaluation protocol (C.3): a seed's score is its best evaluated checkpoint's success rate."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+from lerobot_skillret.pipeline.plan import Cell, Plan
+from lerobot_skillret.pipeline.stages import write_json_atomic
+
+
+def read_success(eval_dir: Path) -> tuple[float, int]:
+    """(success rate in [0, 1], number of rollouts) from a lerobot-eval output folder."""
+    info = json.loads((eval_dir / "eval_info.json").read_text())
+    overall = info["overall"]
+    return float(overall["pc_success"]) / 100.0, int(overall["n_episodes"])
+
+
+def summarise_cell(plan: Plan, cell: Cell, train_seconds: float | None, eval_seconds: float) -> dict[str, Any]:
+    """Collect every evaluated checkpoint of one run and pick the best, as the seed's protocol does."""
+    rows = []
+    for step, _ in plan.checkpoints(cell):
+        success, n = read_success(plan.eval_dir(cell, step))
+        rows.append({"step": step, "success": success, "n_episodes": n})
+    if not rows:
+        raise RuntimeError(f"no evaluated checkpoint for {cell}; did training save any (save_freq)?")
+    best = max(rows, key=lambda r: (r["success"], r["step"]))
+    return {
+        "method": cell.method,
+        "task": cell.task,
+        "seed": cell.seed,
+        "success": best["success"],
+        "best_step": best["step"],
+        "n_episodes": best["n_episodes"],
+        "checkpoints": rows,
+        "train_seconds": train_seconds,
+        "eval_seconds": round(eval_seconds, 1),
+        "output_dir": str(plan.root),
+    }
+
+
+def publish_cell(plan: Plan, cell: Cell, summary: dict[str, Any], results_dir: Path | None) -> None:
+    """Write the cell summary; copy it and the raw eval JSONs into the results folder kept in the repository."""
+    write_json_atomic(plan.cell_path(cell), summary)
+    if results_dir is None:
+        return
+    dest = results_dir / cell.method / cell.task / f"seed{cell.seed}"
+    tmp = dest.with_name(dest.name + ".partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    for row in summary["checkpoints"]:
+        shutil.copyfile(plan.eval_dir(cell, row["step"]) / "eval_info.json", tmp / f"eval_step{row['step']}.json")
+    (tmp / "cell.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
+    shutil.rmtree(dest, ignore_errors=True)
+    tmp.rename(dest)

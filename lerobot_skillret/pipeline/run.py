@@ -1,0 +1,129 @@
+"""`skillret-pipeline`: the whole method on the kitchen benchmark, one resumable command.
+
+    skillret-pipeline run --config configs/pipeline/demo.yaml      # generate -> skills -> retrieval -> policy -> eval
+    skillret-pipeline table --results benchmarks/results           # markdown table + bar plot from raw eval JSONs
+
+Every stage runs a stock CLI (skillret-generate, lerobot-train, skillret-retrieve, lerobot-eval) as a subprocess.
+Finished stages are skipped on re-run, so an interrupted run is continued by running the same command again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import time
+from pathlib import Path
+
+import yaml
+
+from lerobot_skillret.pipeline.config import PipelineConfig
+from lerobot_skillret.pipeline.plan import RETRIEVAL_MODE, Cell, Plan
+from lerobot_skillret.pipeline.protocol import publish_cell, summarise_cell
+from lerobot_skillret.pipeline.results import bar_plot, collect, markdown_table
+from lerobot_skillret.pipeline.stages import StageRunner
+
+log = logging.getLogger("skillret.pipeline")
+SKILLS_FROM_PRIOR = ("skillret", "no_retrieval", "all_retrieval", "random_retrieval")
+
+
+def run_cell(plan: Plan, runner: StageRunner, cell: Cell, results_dir: Path | None) -> dict:
+    if plan.cell_path(cell).exists():
+        log.info("[skip] cell %s/%s/seed%d (summary exists)", cell.method, cell.task, cell.seed)
+        return yaml.safe_load(plan.cell_path(cell).read_text())
+    if cell.method == "no_prior":
+        runner.run(plan.skills_stage(cell.seed, cell.task))
+    mode = RETRIEVAL_MODE.get(cell.method)
+    if mode is not None:
+        runner.run(plan.retrieval_stage(cell.task, mode, cell.seed))
+    train = plan.train_stage(cell)
+    runner.run(train)
+    start = time.monotonic()
+    for step, checkpoint in plan.checkpoints(cell):
+        runner.run(plan.eval_stage(cell, step, checkpoint))
+    summary = summarise_cell(plan, cell, runner.timing(train.name), time.monotonic() - start)
+    publish_cell(plan, cell, summary, results_dir)
+    log.info(
+        "[cell] %s/%s/seed%d: success %.2f (best of %d checkpoints, step %d)",
+        cell.method,
+        cell.task,
+        cell.seed,
+        summary["success"],
+        len(summary["checkpoints"]),
+        summary["best_step"],
+    )
+    return summary
+
+
+def run(cfg: PipelineConfig) -> Path:
+    """Run (or continue) every stage of `cfg`; return the markdown table's path."""
+    plan = Plan(cfg)
+    runner = StageRunner(plan.root)
+    results_dir = Path(cfg.results_dir).resolve() if cfg.results_dir else None
+    start = time.monotonic()
+    for stage in plan.data_stages():
+        runner.run(stage)
+    for seed in cfg.seeds:
+        if any(m in SKILLS_FROM_PRIOR for m in cfg.methods):
+            runner.run(plan.skills_stage(seed))
+        if "act_ft" in cfg.methods:
+            runner.run(plan.act_prior_stage(seed))
+        for task in cfg.tasks:
+            for method in cfg.methods:
+                run_cell(plan, runner, Cell(method, task, seed), results_dir)
+    cells = collect_cells(plan)
+    table = markdown_table(cells)
+    table_path = plan.root / "results.md"
+    table_path.write_text(table)
+    bar_plot(cells, plan.root / "results.png")
+    print(table)
+    log.info("pipeline finished in %.1f min; table: %s", (time.monotonic() - start) / 60, table_path)
+    return table_path
+
+
+def collect_cells(plan: Plan) -> dict[tuple[str, str], list[dict]]:
+    cells: dict[tuple[str, str], list[dict]] = {}
+    for cell in plan.cells():
+        summary = yaml.safe_load(plan.cell_path(cell).read_text())
+        cells.setdefault((cell.method, cell.task), []).append(summary)
+    return cells
+
+
+def parse_overrides(items: list[str]) -> dict[str, object]:
+    out = {}
+    for item in items:
+        if "=" not in item:
+            raise SystemExit(f"override {item!r} must look like key.sub=value (e.g. eval.n_episodes=10)")
+        key, value = item.split("=", 1)
+        out[key] = yaml.safe_load(value)
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="skillret-pipeline", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    run_p = sub.add_parser("run", help="run or continue the pipeline described by a config file")
+    run_p.add_argument("--config", required=True, type=Path, help="pipeline YAML (see configs/pipeline/)")
+    run_p.add_argument("overrides", nargs="*", help="config overrides such as eval.n_episodes=10 output_dir=out/x")
+    table_p = sub.add_parser("table", help="markdown table + bar plot from a folder of finished cells")
+    table_p.add_argument(
+        "--results",
+        type=Path,
+        default=Path("benchmarks/results"),
+        help="folder holding <method>/<task>/seed<s>/cell.json (default: benchmarks/results)",
+    )
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+    if args.command == "run":
+        run(PipelineConfig.from_yaml(args.config, parse_overrides(args.overrides)))
+    else:
+        cells = collect(args.results)
+        table = markdown_table(cells)
+        (args.results / "results.md").write_text(table)
+        bar_plot(cells, args.results / "results.png")
+        print(table)
+
+
+if __name__ == "__main__":
+    main()

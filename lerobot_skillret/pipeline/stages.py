@@ -1,0 +1,101 @@
+"""Run pipeline stages as subprocesses so that a finished stage is never redone and a killed one leaves no debris.
+
+Each stage's command writes into a `.partial` path; only a command that exits 0 gets its partial path renamed to
+the final artifact. Re-running the pipeline skips every stage whose artifact exists and restarts any other from
+scratch, so killing the pipeline at any moment loses at most the stage in flight.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+import subprocess
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+log = logging.getLogger("skillret.pipeline")
+
+
+@dataclass
+class Stage:
+    """One step of the pipeline: `command` writes `partial`, which becomes `output` when the command succeeds."""
+
+    name: str
+    output: Path
+    command: list[str] = field(default_factory=list)
+    after: Callable[[Path], None] | None = None  # runs on the partial artifact before it is published
+
+    @property
+    def partial(self) -> Path:
+        return self.output.with_name(self.output.name + ".partial")
+
+    def done(self) -> bool:
+        return self.output.exists()
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    elif path.exists() or path.is_symlink():
+        path.unlink()
+
+
+def write_json_atomic(path: Path, payload: object) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(payload, indent=2, sort_keys=True))
+    os.replace(tmp, path)
+
+
+class StageRunner:
+    """Runs stages in order with logs under `<output_dir>/logs/` and wall times in `<output_dir>/timings.json`."""
+
+    def __init__(self, output_dir: Path, env: dict[str, str] | None = None) -> None:
+        self.output_dir = output_dir
+        self.logs = output_dir / "logs"
+        self.timings_path = output_dir / "timings.json"
+        self.env = {**os.environ, **(env or {})}
+
+    def _log_path(self, stage: Stage) -> Path:
+        return self.logs / (stage.name.replace("/", "__") + ".log")
+
+    def _record_time(self, stage: Stage, seconds: float) -> None:
+        timings = json.loads(self.timings_path.read_text()) if self.timings_path.exists() else {}
+        timings[stage.name] = round(seconds, 1)
+        write_json_atomic(self.timings_path, timings)
+
+    def timing(self, name: str) -> float | None:
+        if not self.timings_path.exists():
+            return None
+        return json.loads(self.timings_path.read_text()).get(name)
+
+    def run(self, stage: Stage) -> bool:
+        """Run `stage` unless its artifact exists; return True if it ran."""
+        if stage.done():
+            log.info("[skip] %s (exists: %s)", stage.name, stage.output)
+            return False
+        _remove(stage.partial)
+        stage.output.parent.mkdir(parents=True, exist_ok=True)
+        self.logs.mkdir(parents=True, exist_ok=True)
+        log_path = self._log_path(stage)
+        log.info("[run ] %s  (log: %s)", stage.name, log_path)
+        start = time.monotonic()
+        with log_path.open("w") as handle:
+            handle.write("$ " + " ".join(stage.command) + "\n")
+            handle.flush()
+            code = subprocess.run(stage.command, stdout=handle, stderr=subprocess.STDOUT, env=self.env).returncode
+        seconds = time.monotonic() - start
+        if code != 0 or not stage.partial.exists():
+            tail = "".join(log_path.read_text().splitlines(keepends=True)[-25:])
+            why = f"exit code {code}" if code != 0 else f"it did not write {stage.partial}"
+            raise RuntimeError(f"stage {stage.name} failed ({why}). Last lines of {log_path}:\n{tail}")
+        if stage.after is not None:
+            stage.after(stage.partial)
+        os.replace(stage.partial, stage.output)
+        self._record_time(stage, seconds)
+        log.info("[done] %s in %.0f s", stage.name, seconds)
+        return True

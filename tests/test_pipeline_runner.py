@@ -1,0 +1,126 @@
+"""The pipeline's stage runner, config and results table, without the simulator (fast)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from lerobot_skillret.pipeline.config import PipelineConfig
+from lerobot_skillret.pipeline.plan import Cell, Plan
+from lerobot_skillret.pipeline.results import bar_plot, collect, markdown_table
+from lerobot_skillret.pipeline.stages import Stage, StageRunner
+
+
+def writer_stage(tmp_path: Path, name: str, sleep: float = 0.0, fail: bool = False) -> Stage:
+    """A stage whose command slowly writes a folder of two files into the partial path."""
+    stage = Stage(name, tmp_path / "out" / name)
+    code = textwrap.dedent(f"""
+        import pathlib, sys, time
+        p = pathlib.Path({str(stage.partial)!r}); p.mkdir()
+        (p / "a.txt").write_text("a"); time.sleep({sleep}); (p / "b.txt").write_text("b")
+        sys.exit({1 if fail else 0})
+    """)
+    stage.command = [sys.executable, "-c", code]
+    return stage
+
+
+def test_stage_publishes_only_on_success_and_skips_when_done(tmp_path: Path) -> None:
+    runner = StageRunner(tmp_path / "out")
+    ok = writer_stage(tmp_path, "ok")
+    assert runner.run(ok) is True
+    assert sorted(p.name for p in ok.output.iterdir()) == ["a.txt", "b.txt"] and not ok.partial.exists()
+    assert runner.run(ok) is False  # finished stages are never redone
+    assert runner.timing("ok") is not None
+
+    bad = writer_stage(tmp_path, "bad", fail=True)
+    with pytest.raises(RuntimeError, match="stage bad failed \\(exit code 1\\)"):
+        runner.run(bad)
+    assert not bad.output.exists()
+
+
+def test_killed_run_leaves_no_artifact_and_reruns_cleanly(tmp_path: Path) -> None:
+    """SIGKILL the whole process group mid-stage: the next run redoes only that stage, from scratch."""
+    first, slow = writer_stage(tmp_path, "first"), writer_stage(tmp_path, "slow", sleep=30)
+    script = tmp_path / "drive.py"
+    script.write_text(
+        textwrap.dedent(f"""
+        import pickle, sys
+        from pathlib import Path
+        from lerobot_skillret.pipeline.stages import Stage, StageRunner
+        stages = pickle.loads(Path({str(tmp_path / "stages.pkl")!r}).read_bytes())
+        runner = StageRunner(Path({str(tmp_path / "out")!r}))
+        print([runner.run(s) for s in stages], flush=True)
+    """)
+    )
+    import pickle
+
+    (tmp_path / "stages.pkl").write_bytes(pickle.dumps([first, slow]))
+    proc = subprocess.Popen([sys.executable, str(script)], start_new_session=True, stdout=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not (slow.partial / "a.txt").exists():
+        assert time.monotonic() < deadline and proc.poll() is None, "the slow stage never started"
+        time.sleep(0.1)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert first.output.exists() and not slow.output.exists() and slow.partial.exists()
+
+    fast_slow = writer_stage(tmp_path, "slow", sleep=0)
+    (tmp_path / "stages.pkl").write_bytes(pickle.dumps([first, fast_slow]))
+    out = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[False, True]"  # first skipped, slow redone
+    assert sorted(p.name for p in slow.output.iterdir()) == ["a.txt", "b.txt"] and not slow.partial.exists()
+
+
+def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
+    path = tmp_path / "p.yaml"
+    path.write_text("tasks: [cook]\nevall: {n_episodes: 3}\n")
+    with pytest.raises(ValueError, match="unknown keys \\['evall'\\]"):
+        PipelineConfig.from_yaml(path)
+    path.write_text("methods: [skillret, act]\n")
+    with pytest.raises(ValueError, match=r"`act` needs a `baselines\.act` section"):
+        PipelineConfig.from_yaml(path)
+    path.write_text("eval: {n_episodes: 2, batch_size: 4}\n")
+    with pytest.raises(ValueError, match="batch_size"):
+        PipelineConfig.from_yaml(path)
+    cfg = PipelineConfig.from_yaml(path, {"eval.batch_size": 1, "policy.args": {"policy.horizon": 5}})
+    assert cfg.eval.batch_size == 1 and cfg.policy.args == {"policy.horizon": 5}
+
+
+def test_plan_wires_each_ablation(tmp_path: Path) -> None:
+    methods = ["skillret", "no_retrieval", "random_retrieval", "no_prior"]
+    plan = Plan(PipelineConfig(output_dir=str(tmp_path), tasks=["cook"], methods=methods))
+    cmds = {m: " ".join(plan.train_stage(Cell(m, "cook", 0)).command) for m in methods}
+    assert "--policy.retrieval_path=" in cmds["skillret"] and "cook_default_seed0" in cmds["skillret"]
+    assert "cook_random_seed0" in cmds["random_retrieval"]
+    assert "--policy.use_retrieval=false" in cmds["no_retrieval"] and "prior_seed0" in cmds["no_retrieval"]
+    assert "target_cook_seed0" in cmds["no_prior"] and "--policy.prior_repo_id=null" in cmds["no_prior"]
+    assert "--mode=random" in " ".join(plan.retrieval_stage("cook", "random", 0).command)
+
+
+def _cell(root: Path, method: str, task: str, seed: int, success: float) -> None:
+    path = root / method / task / f"seed{seed}" / "cell.json"
+    path.parent.mkdir(parents=True)
+    payload = {"method": method, "task": task, "seed": seed, "success": success, "n_episodes": 10}
+    path.write_text(json.dumps(payload))
+
+
+def test_results_table_is_mean_and_std_over_seeds(tmp_path: Path) -> None:
+    for seed, s in enumerate([0.5, 0.7, 0.9]):
+        _cell(tmp_path, "skillret", "cook", seed, s)
+    _cell(tmp_path, "skillret", "breakfast", 0, 0.4)
+    _cell(tmp_path, "act", "cook", 0, 0.2)
+    table = markdown_table(collect(tmp_path))
+    lines = table.splitlines()
+    assert lines[0] == "| method | breakfast | cook | average |"
+    assert lines[2] == "| skillret | 40.0 ± 0.0 (1) | 70.0 ± 16.3 (3) | 55.0 |"  # methods in canonical order
+    assert lines[3] == "| act | — | 20.0 ± 0.0 (1) | — |"
+    bar_plot(collect(tmp_path), tmp_path / "plot.png")
+    assert (tmp_path / "plot.png").stat().st_size > 1000
