@@ -1,0 +1,320 @@
+"""Skill windows from a LeRobotDataset, thousands of times faster than `__getitem__` with `delta_timestamps`.
+
+Skill pre-training and retrieval need millions of (history F, horizon H) windows. `LeRobotDataset.__getitem__`
+builds each one through Python lists and HF `datasets` row access (~2-4 ms per window). Here:
+
+- `EpisodeColumns` exports the low-dim columns ONCE, column-wise, from the Arrow table behind `ds.hf_dataset`
+  (pyarrow `flatten().to_numpy()`, never `__getitem__`), adds per-frame episode bounds, and stores the result as a
+  memory-mapped TensorDict cached on disk, keyed by `dataset_fingerprint(root)` (rebuilt when the dataset changes).
+  The cache is built in a temporary folder and renamed into place, so a concurrent reader sees either no cache or
+  a complete one.
+- `WindowSampler` draws anchors uniformly over frames (not over episodes: long episodes are not under-sampled) and
+  gathers windows by clamped index arithmetic plus one `index_select` per key (~1-2 us per window).
+
+Why not torchrl: its `SliceSampler` picks an episode first (not uniform over frames) and pads only on the right;
+torchrl 0.14's `Sequence` sample unit has the right semantics but measured ~1.2-2 ms per 256 windows against
+~0.35-0.5 ms for the index arithmetic here (see `benchmarks/windows_throughput.py`). `index_select` also keeps the
+gather fast when torch's intra-op threads are oversubscribed (advanced indexing `x[idx2d]` was measured 100x
+slower there), so the sampler never changes the process-wide thread settings.
+
+Semantics equal LeRobot's: observation keys get frames anchor-(F-1) .. anchor+H-1, every other key (`action`, and
+any extra low-dim key asked for) gets anchor .. anchor+H-1; positions outside the anchor's episode repeat the
+episode's first/last frame and are flagged True in `<key>_is_pad`. Values are RAW dataset values: normalisation
+belongs to the policy.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import tempfile
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import torch
+from tensordict import TensorDict
+
+from lerobot_skillret.data.fingerprint import dataset_fingerprint
+
+CACHE_DIRNAME = ".skillret_cache"
+CACHE_VERSION = 1  # bump when the cache layout or the exported columns change
+BOUND_KEYS = ("episode_start", "episode_end")
+_REQUIRED_KEYS = ("index", "episode_index", "frame_index")
+_SKIPPED_DTYPES = ("image", "video", "string")
+_INFO_FILE = "columns.json"
+
+
+@dataclass
+class EpisodeColumns:
+    """A LeRobotDataset's low-dim columns as one TensorDict [num_frames], plus per-frame episode bounds.
+
+    Row i is global frame i (LeRobot's `index` runs 0..N-1, so retrieval results index rows directly).
+    `td` holds every exported feature under its LeRobot name with per-frame shape `features[name]` (scalar
+    features, shape (1,) in LeRobot, are stored per frame as (), like `__getitem__` returns them) and int64
+    `episode_start` / `episode_end`: the global index of the first frame / one past the last frame of the frame's
+    episode.
+    """
+
+    td: TensorDict
+    features: dict[str, tuple[int, ...]]
+    fps: int
+    fingerprint: str
+    repo_id: str
+
+    def __len__(self) -> int:
+        return int(self.td.batch_size[0])
+
+    @classmethod
+    def from_dataset(
+        cls, repo_id: str, root: str | Path, cache_dir: Path | None = None, keys: list[str] | None = None
+    ) -> EpisodeColumns:
+        """Load the cached columns of the dataset at `root`, exporting them first if absent or stale.
+
+        The cache lives in `cache_dir` (default `<root>/.skillret_cache/`). `keys` restricts the exported features
+        (default: every float/int/bool feature that is not an image/video); `index`, `episode_index` and
+        `frame_index` are always exported.
+        """
+        root = Path(root)
+        _check_root(root)
+        fingerprint = dataset_fingerprint(root)
+        cache_dir = Path(cache_dir) if cache_dir is not None else root / CACHE_DIRNAME
+        wanted = None if keys is None else sorted(set(keys) | set(_REQUIRED_KEYS))
+        name = f"columns-v{CACHE_VERSION}-{fingerprint}" + ("" if wanted is None else f"-{_keys_tag(wanted)}")
+        final = cache_dir / name
+        if not (final / _INFO_FILE).is_file():
+            _build_cache(repo_id, root, fingerprint, wanted, cache_dir, final)
+            _remove_stale(cache_dir, keep=name)
+        return cls._load(final)
+
+    @classmethod
+    def _load(cls, folder: Path) -> EpisodeColumns:
+        info = json.loads((folder / _INFO_FILE).read_text())
+        td = TensorDict.load_memmap(folder / "td")
+        return cls(
+            td=td,
+            features={k: tuple(v) for k, v in info["features"].items()},
+            fps=int(info["fps"]),
+            fingerprint=info["fingerprint"],
+            repo_id=info["repo_id"],
+        )
+
+
+def _check_root(root: Path) -> None:
+    if not (root / "meta" / "info.json").is_file():
+        raise FileNotFoundError(
+            f"No LeRobotDataset at {root} (missing meta/info.json). Pass the dataset's local root folder "
+            "(the one holding meta/ and data/), e.g. the output folder of `skillret-generate`."
+        )
+    if json.loads((root / "meta" / "info.json").read_text()).get("total_frames", 0) == 0:
+        raise ValueError(
+            f"The LeRobotDataset at {root} has zero frames: record or generate at least one episode "
+            "(add_frame + save_episode, then finalize) before sampling windows from it."
+        )
+
+
+def _keys_tag(keys: list[str]) -> str:
+    return hashlib.sha1("\n".join(keys).encode()).hexdigest()[:8]
+
+
+def _column_to_numpy(column: pa.ChunkedArray, num_frames: int, shape: tuple[int, ...]) -> np.ndarray:
+    """A (possibly nested fixed-size-list) Arrow column as a (num_frames, *shape) array, column-wise."""
+    array = column.combine_chunks()
+    while pa.types.is_fixed_size_list(array.type) or pa.types.is_list(array.type):
+        array = array.flatten()
+    values = array.to_numpy(zero_copy_only=False)
+    return values.reshape((num_frames, *shape))
+
+
+def _export(repo_id: str, root: Path, wanted: list[str] | None) -> tuple[TensorDict, dict]:
+    """Read the dataset once through LeRobot's loader and return (columns TensorDict, info dict)."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    dataset = LeRobotDataset(repo_id, root=root)
+    num_frames = len(dataset.hf_dataset)
+    lowdim = {k: ft for k, ft in dataset.features.items() if ft["dtype"] not in _SKIPPED_DTYPES}
+    if wanted is not None:
+        missing = [k for k in wanted if k not in lowdim]
+        if missing:
+            raise KeyError(
+                f"Dataset {repo_id} at {root} has no low-dim feature(s) {missing}; available: {sorted(lowdim)}. "
+                "Fix the `keys` argument (image/video features cannot be exported)."
+            )
+        lowdim = {k: lowdim[k] for k in wanted}
+    table = dataset.hf_dataset.data.table
+    columns: dict[str, torch.Tensor] = {}
+    features: dict[str, tuple[int, ...]] = {}
+    for key, ft in lowdim.items():
+        shape = tuple(ft["shape"])
+        shape = () if shape == (1,) else shape
+        values = _column_to_numpy(table.column(key), num_frames, shape)
+        if np.issubdtype(values.dtype, np.floating):
+            _check_finite(key, values, table, root)
+        columns[key] = torch.from_numpy(np.require(values, requirements=["C", "W"]))  # Arrow buffers are read-only
+        features[key] = shape
+    start, end = _episode_bounds(columns["index"], columns["episode_index"], root)
+    columns["episode_start"], columns["episode_end"] = start, end
+    td = TensorDict(columns, batch_size=[num_frames])
+    info = {"features": features, "fps": int(dataset.fps), "repo_id": repo_id}
+    return td, info
+
+
+def _check_finite(key: str, values: np.ndarray, table: pa.Table, root: Path) -> None:
+    bad = ~np.isfinite(values.reshape(len(values), -1)).all(axis=1)
+    if bad.any():
+        frame = int(np.argmax(bad))
+        episode = table.column("episode_index")[frame].as_py()
+        raise ValueError(
+            f"Column '{key}' of the dataset at {root} has NaN/inf values ({int(bad.sum())} frames), first at "
+            f"global frame {frame} (episode {episode}). Fix the data: re-generate or drop that episode "
+            "(NaN would silently poison the normalisation statistics and every window that touches it)."
+        )
+
+
+def _episode_bounds(index: torch.Tensor, episode: torch.Tensor, root: Path) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-frame global [start, end) of the frame's episode; episodes must be contiguous runs of rows."""
+    n = len(index)
+    if not torch.equal(index, torch.arange(n, dtype=index.dtype)):
+        raise ValueError(
+            f"The 'index' column of the dataset at {root} is not 0..{n - 1} in row order; windows and retrieval "
+            "indices rely on it. Re-write the dataset with LeRobotDataset.create/add_frame/save_episode."
+        )
+    change = torch.nonzero(episode[1:] != episode[:-1]).flatten() + 1
+    starts = torch.cat([torch.zeros(1, dtype=torch.long), change])
+    ends = torch.cat([change, torch.tensor([n])])
+    if len(torch.unique(episode[starts])) != len(starts):
+        raise ValueError(
+            f"Episodes of the dataset at {root} are not contiguous runs of rows (an episode_index reappears "
+            "after another episode). Re-write the dataset so each episode's frames are consecutive."
+        )
+    lengths = ends - starts
+    return torch.repeat_interleave(starts, lengths), torch.repeat_interleave(ends, lengths)
+
+
+def _build_cache(
+    repo_id: str, root: Path, fingerprint: str, wanted: list[str] | None, cache_dir: Path, final: Path
+) -> None:
+    """Export into a private temporary folder, then rename it into place (atomic on one filesystem)."""
+    td, info = _export(repo_id, root, wanted)
+    info["fingerprint"] = fingerprint
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{final.name}-{uuid.uuid4().hex[:6]}-", dir=cache_dir))
+    try:
+        td.memmap_(tmp / "td")
+        (tmp / _INFO_FILE).write_text(json.dumps(info, indent=1))
+        try:
+            tmp.rename(final)
+        except OSError:
+            if not (final / _INFO_FILE).is_file():  # not a concurrent builder that won the race: a real error
+                raise
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _remove_stale(cache_dir: Path, keep: str) -> None:
+    """Drop caches of older dataset versions (open memmaps of a running reader survive unlinking on POSIX)."""
+    for old in cache_dir.glob("columns-*"):
+        if old.name != keep and old.name.split("-")[2] != keep.split("-")[2]:
+            shutil.rmtree(old, ignore_errors=True)
+
+
+class WindowSampler:
+    """Uniform (history F, horizon H) windows over the frames of an `EpisodeColumns` table.
+
+    `keys` defaults to every `observation.*` column plus `action`. Observation keys get F+H-1 steps (delta indices
+    -(F-1)..H-1, LeRobot's `observation_delta_indices`), every other key H steps (0..H-1).
+    """
+
+    def __init__(
+        self,
+        columns: EpisodeColumns,
+        history: int,
+        horizon: int,
+        keys: list[str] | None = None,
+        seed: int | None = None,
+    ) -> None:
+        if history < 1 or horizon < 1:
+            raise ValueError(f"history (F) and horizon (H) must be >= 1, got history={history}, horizon={horizon}")
+        available = [k for k in columns.features if k not in _REQUIRED_KEYS]
+        if keys is None:
+            keys = [k for k in available if k.startswith("observation.")]
+            keys += ["action"] if "action" in columns.features else []
+        missing = [k for k in keys if k not in columns.features]
+        if missing or not keys:
+            raise KeyError(
+                f"Window keys {missing or keys} are not low-dim columns of {columns.repo_id}; available: "
+                f"{available}. Fix the `keys` argument (or export them with EpisodeColumns.from_dataset(keys=...))."
+            )
+        self.columns = columns
+        self.history, self.horizon, self.keys = history, horizon, list(keys)
+        # Plain-tensor views of the memory-mapped storage: MemoryMappedTensor's subclass dispatch made
+        # index_select ~10x slower, and the view shares the same pages (no copy).
+        self._data = {k: columns.td[k].as_subclass(torch.Tensor) for k in (*self.keys, *BOUND_KEYS)}
+        self._episode = columns.td["episode_index"].as_subclass(torch.Tensor)
+        self._obs_offsets = torch.arange(-(history - 1), horizon)
+        self._act_offsets = torch.arange(0, horizon)
+        self.generator = torch.Generator()
+        if seed is None:
+            self.generator.seed()
+        else:
+            self.generator.manual_seed(seed)
+
+    def __len__(self) -> int:
+        return len(self.columns)
+
+    def sample_anchors(self, batch_size: int) -> torch.Tensor:
+        """`batch_size` global frame positions drawn uniformly (with replacement) over all frames."""
+        return torch.randint(0, len(self.columns), (batch_size,), generator=self.generator)
+
+    def _check_anchors(self, anchors: torch.Tensor) -> torch.Tensor:
+        anchors = torch.as_tensor(anchors, dtype=torch.long).flatten()
+        n = len(self.columns)
+        if anchors.numel() and (int(anchors.min()) < 0 or int(anchors.max()) >= n):
+            raise IndexError(
+                f"anchors must be global frame positions in [0, {n}), got {int(anchors.min())}..{int(anchors.max())}"
+            )
+        return anchors
+
+    def gather(self, anchors: torch.Tensor) -> TensorDict:
+        """Windows at `anchors` as TensorDict[B]: `<key>` (B, T, *shape), `<key>_is_pad` (B, T), `index`,
+        `episode_index` (of the anchor), with T = F+H-1 for observation keys and H otherwise."""
+        anchors = self._check_anchors(anchors)
+        start = self._data["episode_start"].index_select(0, anchors)[:, None]
+        end = self._data["episode_end"].index_select(0, anchors)[:, None]
+        windows = {}
+        for offsets, keys in (
+            (self._obs_offsets, [k for k in self.keys if k.startswith("observation.")]),
+            (self._act_offsets, [k for k in self.keys if not k.startswith("observation.")]),
+        ):
+            if not keys:
+                continue
+            pos = anchors[:, None] + offsets[None, :]
+            is_pad = (pos < start) | (pos >= end)
+            flat = torch.minimum(torch.maximum(pos, start), end - 1).flatten()
+            for key in keys:
+                column = self._data[key]
+                windows[key] = column.index_select(0, flat).reshape(*pos.shape, *column.shape[1:])
+                windows[f"{key}_is_pad"] = is_pad
+        windows["index"] = anchors
+        windows["episode_index"] = self._episode.index_select(0, anchors)
+        return TensorDict(windows, batch_size=[len(anchors)])
+
+    def sample(self, batch_size: int) -> TensorDict:
+        """`gather(sample_anchors(batch_size))`."""
+        return self.gather(self.sample_anchors(batch_size))
+
+    def sample_pair_anchors(self, anchors: torch.Tensor, max_offset: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """For the temporal-prediction loss: anchors2 uniform over the frames of each anchor's episode within
+        +-max_offset of it (the anchor itself included), and d = anchors2 - anchors."""
+        if max_offset < 0:
+            raise ValueError(f"max_offset must be >= 0, got {max_offset}")
+        anchors = self._check_anchors(anchors)
+        low = torch.maximum(anchors - max_offset, self._data["episode_start"].index_select(0, anchors))
+        high = torch.minimum(anchors + max_offset, self._data["episode_end"].index_select(0, anchors) - 1)
+        u = torch.rand(anchors.shape, generator=self.generator, dtype=torch.float64)
+        anchors2 = low + torch.clamp((u * (high - low + 1)).long(), max=high - low)
+        return anchors2, anchors2 - anchors
