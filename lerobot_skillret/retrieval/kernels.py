@@ -1,0 +1,197 @@
+"""Distance from every prior latent to its nearest target latent, in bounded memory.
+
+Algorithm 2 (lines 4-5) needs, for each of N prior windows, the distance to the closest of M target windows. The
+N x M matrix is never built: prior rows are scored in chunks of `chunk_size`, each chunk with ONE matrix product
+into a reused [chunk, M] buffer followed by a row minimum, so peak memory is O(chunk * M) whatever N is.
+
+Both metrics are written as `d(i, j) = F_i . G_j + a_i + b_j` (features F of a prior row, G of a target row,
+per-row constants a, b): the product absorbs b_j through an extra column of ones, and a_i is added after the
+minimum (it does not change which j is nearest).
+
+- "l2": squared Euclidean distance of the encoder means, ||p||^2 - 2 p.q + ||q||^2 (the paper's metric; the
+  reported distance is its square root). Both sets are centred first: this keeps the cancellation error small.
+- "kl": the symmetric KL of two diagonal Gaussians, 0.5 (KL(q1||q2) + KL(q2||q1)) (appendix A.2). Per dimension
+  it is 0.25 (v1/v2 + v2/v1 + (m1 - m2)^2 (1/v1 + 1/v2) - 2): the log-determinants cancel, and expanding the
+  square leaves four products of a prior feature with a target feature, i.e. one product over 4 D features.
+
+The chunks run in float32 (the GEMM is the cost). Each row also gets a rigorous-style bound on its float32 error
+(`Scores.margin`), which `select.smallest` uses to re-score in float64 only the few rows whose side of the cut is
+uncertain: the selected set then equals a float64 brute-force computation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+from tqdm.auto import tqdm
+
+METRICS = ("l2", "kl")
+_UNIT_ROUNDOFF = {torch.float32: 2.0**-24, torch.float64: 2.0**-53}
+
+
+@dataclass
+class Scores:
+    """Per prior row: the metric value to its k-th nearest target, that target's index, and an error bound."""
+
+    value: Tensor  # [N] float64: squared L2 or symmetric KL to the k-th nearest target latent
+    nearest: Tensor  # [N] int64: index of the nearest target latent
+    margin: Tensor  # [N] float64: |value - exact value| <= margin (0-ish for a float64 run)
+
+
+def check_latents(mean: Tensor, log_var: Tensor | None, metric: str, name: str) -> None:
+    """Reject shapes and values the kernels would otherwise turn into silent nonsense."""
+    if metric not in METRICS:
+        raise ValueError(f"Unknown retrieval metric {metric!r}: choose one of {METRICS}.")
+    if mean.ndim != 2:
+        raise ValueError(f"{name} latents must be a [num_windows, latent_dim] matrix; got {tuple(mean.shape)}.")
+    if metric == "kl":
+        if log_var is None:
+            raise ValueError(
+                f"The 'kl' metric needs the encoder log-variances of the {name} windows; pass {name}_log_var "
+                "(or use metric 'l2')."
+            )
+        if log_var.shape != mean.shape:
+            raise ValueError(f"{name} log-variances {tuple(log_var.shape)} do not match the means {tuple(mean.shape)}.")
+
+
+class NearestTarget:
+    """Scores prior latents against a fixed set of target latents (Algorithm 2, lines 2-5).
+
+    `neighbors`=k scores each prior row by its k-th nearest target (k=1 is the paper). `exclude` (per prior row,
+    a target column to ignore, -1 for none) lets a prior subset serve as its own reference without matching
+    itself (used by importance-weighted scoring).
+    """
+
+    def __init__(
+        self,
+        target_mean: Tensor,
+        target_log_var: Tensor | None = None,
+        *,
+        metric: str = "l2",
+        neighbors: int = 1,
+    ) -> None:
+        check_latents(target_mean, target_log_var, metric, "target")
+        if target_mean.shape[0] == 0:
+            raise ValueError(
+                "The target set is empty: retrieval needs at least one target window (is the target dataset "
+                "empty, or --num-target 0?)."
+            )
+        if not 1 <= neighbors <= target_mean.shape[0]:
+            raise ValueError(
+                f"neighbors={neighbors} must be between 1 and the number of target windows ({target_mean.shape[0]})."
+            )
+        self.metric = metric
+        self.neighbors = neighbors
+        self.target_mean = target_mean.detach().to(torch.float64)
+        self.target_log_var = None if target_log_var is None else target_log_var.detach().to(torch.float64)
+
+    @property
+    def latent_dim(self) -> int:
+        return self.target_mean.shape[1]
+
+    def _check_prior(self, prior_mean: Tensor, prior_log_var: Tensor | None) -> None:
+        check_latents(prior_mean, prior_log_var if self.metric == "kl" else None, self.metric, "prior")
+        if prior_mean.shape[1] != self.latent_dim:
+            raise ValueError(
+                f"Prior latents have dimension {prior_mean.shape[1]} but target latents {self.latent_dim}: both "
+                "must be encoded by the same stage-1 checkpoint."
+            )
+
+    # --- features ---------------------------------------------------------------------------------------------
+
+    def _prior_features(self, mean: Tensor, log_var: Tensor | None, center: Tensor) -> tuple[Tensor, Tensor]:
+        """(F [n, E], a [n]) in float64 for a chunk of prior rows."""
+        m = mean.to(torch.float64) - center
+        if self.metric == "l2":
+            return m, (m * m).sum(1)
+        inv = torch.exp(-log_var.to(torch.float64))
+        var = torch.exp(log_var.to(torch.float64))
+        features = torch.cat([var + m * m, inv, m * inv, m], dim=1)
+        return features, 0.25 * (m * m * inv).sum(1)
+
+    def _target_features(self, center: Tensor) -> tuple[Tensor, Tensor]:
+        """(G [M, E], b [M]) in float64; the KL scale 0.25 and its constant -D/2 are folded in here."""
+        m = self.target_mean - center
+        if self.metric == "l2":
+            return -2.0 * m, (m * m).sum(1)
+        inv = torch.exp(-self.target_log_var)
+        var = torch.exp(self.target_log_var)
+        features = 0.25 * torch.cat([inv, var + m * m, -2.0 * m, -2.0 * m * inv], dim=1)
+        return features, 0.25 * ((m * m * inv).sum(1) - 2.0 * self.latent_dim)
+
+    # --- scoring ----------------------------------------------------------------------------------------------
+
+    def score(
+        self,
+        prior_mean: Tensor,
+        prior_log_var: Tensor | None = None,
+        *,
+        chunk_size: int = 1024,
+        dtype: torch.dtype = torch.float32,
+        exclude: Tensor | None = None,
+        progress: bool = False,
+    ) -> Scores:
+        """Score every prior row; memory beyond the inputs is O(chunk_size * M), never O(N * M)."""
+        self._check_prior(prior_mean, prior_log_var)
+        if chunk_size < 1:
+            raise ValueError(f"chunk_size must be >= 1; got {chunk_size}.")
+        num_prior, num_target = prior_mean.shape[0], self.target_mean.shape[0]
+        if exclude is not None and exclude.shape != (num_prior,):
+            raise ValueError(f"exclude needs one entry per prior row ({num_prior}); got {tuple(exclude.shape)}.")
+        center = self._center(prior_mean, chunk_size)
+        target_features, target_const = self._target_features(center)
+        width = target_features.shape[1]
+        # Augmented target matrix [E + 1, M]: its last row meets a column of ones and adds b_j.
+        target_aug = torch.cat([target_features, target_const[:, None]], dim=1).t().contiguous().to(dtype)
+        chunk_size = min(chunk_size, max(num_prior, 1))
+        prior_aug = torch.ones(chunk_size, width + 1, dtype=dtype)
+        buffer = torch.empty(chunk_size, num_target, dtype=dtype)
+        value = torch.empty(num_prior, dtype=torch.float64)
+        nearest = torch.empty(num_prior, dtype=torch.int64)
+        margin = torch.empty(num_prior, dtype=torch.float64)
+        # Error bound: gamma_n (sum_e |F_ie G_je| + |b_j|) <= gamma_n (||F_i|| max||G_j|| + max|b_j|), plus the
+        # roundings of the inputs and of the final additions; doubled for safety.
+        gamma = 2.0 * (width + 6) * _UNIT_ROUNDOFF[dtype]
+        target_norm_max = float(target_features.norm(dim=1).max())
+        target_const_max = float(target_const.abs().max())
+        starts = range(0, num_prior, chunk_size)
+        for start in tqdm(starts, desc=f"scoring prior windows ({self.metric})", disable=not progress, unit="chunk"):
+            stop = min(start + chunk_size, num_prior)
+            log_var = None if prior_log_var is None else prior_log_var[start:stop]
+            features, const = self._prior_features(prior_mean[start:stop], log_var, center)
+            block = buffer[: stop - start]
+            prior_aug[: stop - start, :width].copy_(features)
+            torch.mm(prior_aug[: stop - start], target_aug, out=block)
+            if exclude is not None:
+                rows = torch.nonzero(exclude[start:stop] >= 0).squeeze(1)
+                block[rows, exclude[start:stop][rows]] = float("inf")
+            kth, nearest[start:stop] = self._kth_nearest(block)
+            total = kth.to(torch.float64) + const
+            value[start:stop] = total
+            bound = features.norm(dim=1) * target_norm_max + target_const_max + const.abs() + total.abs()
+            margin[start:stop] = gamma * bound
+        return Scores(value=value, nearest=nearest, margin=margin)
+
+    def exact(
+        self, prior_mean: Tensor, prior_log_var: Tensor | None, rows: Tensor, exclude: Tensor | None = None
+    ) -> Tensor:
+        """float64 values of the given prior rows: settles the rows whose side of the selection cut is uncertain."""
+        log_var = None if prior_log_var is None else prior_log_var[rows]
+        sub_exclude = None if exclude is None else exclude[rows]
+        return self.score(prior_mean[rows], log_var, chunk_size=256, dtype=torch.float64, exclude=sub_exclude).value
+
+    def _kth_nearest(self, block: Tensor) -> tuple[Tensor, Tensor]:
+        """Row-wise k-th smallest value and the column of the smallest."""
+        if self.neighbors == 1:
+            return torch.min(block, dim=1)
+        values, index = torch.topk(block, self.neighbors, dim=1, largest=False, sorted=True)
+        return values[:, -1], index[:, 0]
+
+    def _center(self, prior_mean: Tensor, chunk_size: int) -> Tensor:
+        """Mean of prior and target latents together (float64, one chunked pass over the prior, no copy)."""
+        total = self.target_mean.sum(0)
+        for start in range(0, prior_mean.shape[0], chunk_size):
+            total = total + prior_mean[start : start + chunk_size].to(torch.float64).sum(0)
+        return total / (prior_mean.shape[0] + self.target_mean.shape[0])

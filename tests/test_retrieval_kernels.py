@@ -1,0 +1,136 @@
+"""The chunked float32 kernels select exactly the set a float64 brute force selects (L2 and symmetric KL)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from lerobot_skillret.retrieval.kernels import NearestTarget
+from lerobot_skillret.retrieval.select import retrieval_count, smallest
+
+
+def brute_force(prior_mean, target_mean, metric, prior_log_var=None, target_log_var=None, neighbors=1):
+    """float64 reference written from the definitions, with the full N x M matrix (small inputs only)."""
+    p, q = prior_mean.double()[:, None, :], target_mean.double()[None, :, :]
+    if metric == "l2":
+        matrix = ((p - q) ** 2).sum(-1)
+    else:
+        v1, v2 = prior_log_var.double().exp()[:, None, :], target_log_var.double().exp()[None, :, :]
+
+        def kl(m_a, v_a, m_b, v_b):
+            return 0.5 * (torch.log(v_b / v_a) + (v_a + (m_a - m_b) ** 2) / v_b - 1.0).sum(-1)
+
+        matrix = 0.5 * (kl(p, v1, q, v2) + kl(q, v2, p, v1))
+    values, index = torch.topk(matrix, neighbors, dim=1, largest=False, sorted=True)
+    return values[:, -1], index[:, 0]
+
+
+def reference_selection(values, count):
+    return set(torch.sort(values, stable=True).indices[:count].tolist())
+
+
+def random_latents(num, dim, generator, offset=0.0, spread=1.0):
+    mean = offset + spread * torch.randn(num, dim, generator=generator)
+    log_var = 0.5 * torch.randn(num, dim, generator=generator) - 1.0
+    return mean, log_var
+
+
+@pytest.mark.parametrize("metric", ["l2", "kl"])
+@pytest.mark.parametrize("chunk_size", [1, 7, 64, 333, 5000])
+def test_selection_equals_float64_brute_force(metric, chunk_size):
+    generator = torch.Generator().manual_seed(hash((metric, chunk_size)) % 2**31)
+    prior_mean, prior_log_var = random_latents(1500, 12, generator)
+    target_mean, target_log_var = random_latents(90, 12, generator, offset=0.3)
+    engine = NearestTarget(target_mean, target_log_var if metric == "kl" else None, metric=metric)
+    scores = engine.score(prior_mean, prior_log_var if metric == "kl" else None, chunk_size=chunk_size)
+    ref_values, ref_nearest = brute_force(prior_mean, target_mean, metric, prior_log_var, target_log_var)
+
+    error = (scores.value - ref_values).abs()
+    assert torch.all(error <= scores.margin), "the per-row error bound must hold"
+    torch.testing.assert_close(scores.value, ref_values, rtol=1e-4, atol=1e-4)
+    assert (scores.nearest == ref_nearest).float().mean() > 0.99
+
+    for fraction in (0.02, 0.1, 0.5, 0.9, 1.0):
+        count = retrieval_count(fraction, 1500)
+        rows, values = smallest(
+            scores, count, lambda r: engine.exact(prior_mean, prior_log_var if metric == "kl" else None, r)
+        )
+        assert set(rows.tolist()) == reference_selection(ref_values, count)
+        assert torch.all(values[1:] >= values[:-1]), "retrieved windows come sorted by distance"
+
+
+def test_refinement_fixes_float32_near_ties():
+    """Prior rows on unit spheres around spread-out targets: exact distances differ by ~1e-6, float32 errors are
+    ~1e-3, so float32 alone picks a mostly wrong set; the margin-guided float64 re-scoring picks the exact one."""
+    generator = torch.Generator().manual_seed(0)
+    target_mean = 10.0 * torch.randn(40, 16, generator=generator)
+    direction = torch.randn(4000, 16, generator=generator)
+    owner = torch.randint(0, 40, (4000,), generator=generator)
+    prior_mean = target_mean[owner] + direction / direction.norm(dim=1, keepdim=True)
+    engine = NearestTarget(target_mean)
+    scores = engine.score(prior_mean, chunk_size=256)
+    ref_values, _ = brute_force(prior_mean, target_mean, "l2")
+    assert torch.all((scores.value - ref_values).abs() <= scores.margin)
+    count = retrieval_count(0.1, 4000)
+    expected = reference_selection(ref_values, count)
+    float32_rows, _ = smallest(scores, count)
+    assert set(float32_rows.tolist()) != expected, "this case must be hard for float32 alone"
+    rows, _ = smallest(scores, count, lambda r: engine.exact(prior_mean, None, r))
+    assert set(rows.tolist()) == expected
+
+
+@pytest.mark.parametrize("metric", ["l2", "kl"])
+def test_kth_neighbour_and_exclusion(metric):
+    generator = torch.Generator().manual_seed(5)
+    prior_mean, prior_log_var = random_latents(400, 6, generator)
+    target_mean, target_log_var = random_latents(30, 6, generator)
+    log_vars = (prior_log_var, target_log_var) if metric == "kl" else (None, None)
+    engine = NearestTarget(target_mean, log_vars[1], metric=metric, neighbors=3)
+    scores = engine.score(prior_mean, log_vars[0], chunk_size=50)
+    ref_values, ref_nearest = brute_force(prior_mean, target_mean, metric, prior_log_var, target_log_var, 3)
+    torch.testing.assert_close(scores.value, ref_values, rtol=1e-4, atol=1e-4)
+    assert torch.equal(scores.nearest, ref_nearest)
+
+    # A prior row that IS target column j must not match itself when j is excluded.
+    prior_with_copies = torch.cat([target_mean[:5], prior_mean[:20]])
+    exclude = torch.tensor([0, 1, 2, 3, 4] + [-1] * 20)
+    log_var_copies = torch.cat([target_log_var[:5], prior_log_var[:20]]) if metric == "kl" else None
+    nearest_one = NearestTarget(target_mean, log_vars[1], metric=metric)
+    excluded = nearest_one.score(prior_with_copies, log_var_copies, chunk_size=4, exclude=exclude)
+    assert torch.all(excluded.value[:5] > 1e-3)
+    assert not torch.any(excluded.nearest[:5] == torch.arange(5))
+    exact = nearest_one.exact(prior_with_copies, log_var_copies, torch.arange(25), exclude)
+    torch.testing.assert_close(exact, excluded.value, rtol=1e-4, atol=1e-4)
+
+
+def test_bad_inputs_have_clear_errors():
+    target = torch.randn(10, 8)
+    with pytest.raises(ValueError, match="target set is empty"):
+        NearestTarget(torch.empty(0, 8))
+    with pytest.raises(ValueError, match="dimension 4 but target latents 8"):
+        NearestTarget(target).score(torch.randn(5, 4))
+    with pytest.raises(ValueError, match="needs the encoder log-variances"):
+        NearestTarget(target, metric="kl")
+    with pytest.raises(ValueError, match="Unknown retrieval metric"):
+        NearestTarget(target, metric="cosine")
+    with pytest.raises(ValueError, match=r"\[num_windows, latent_dim\]"):
+        NearestTarget(torch.randn(10))
+    with pytest.raises(ValueError, match="neighbors=11"):
+        NearestTarget(target, neighbors=11)
+    with pytest.raises(ValueError, match="chunk_size"):
+        NearestTarget(target).score(torch.randn(5, 8), chunk_size=0)
+    with pytest.raises(ValueError, match=r"r=1.5 must be in \[0, 1\]"):
+        retrieval_count(1.5, 100)
+    with pytest.raises(ValueError, match=r"r=-0.1"):
+        retrieval_count(-0.1, 100)
+    scores = NearestTarget(target).score(torch.randn(5, 8))
+    with pytest.raises(ValueError, match="Cannot select 6 of 5"):
+        smallest(scores, 6)
+
+
+def test_empty_prior_and_zero_count():
+    engine = NearestTarget(torch.randn(10, 8))
+    scores = engine.score(torch.empty(0, 8))
+    assert scores.value.shape == (0,)
+    rows, values = smallest(engine.score(torch.randn(5, 8)), 0)
+    assert rows.numel() == 0 and values.numel() == 0
