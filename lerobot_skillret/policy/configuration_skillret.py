@@ -14,6 +14,8 @@ from lerobot.optim.optimizers import AdamConfig
 
 STAGES = ("skills", "policy")
 RETRIEVAL_METRICS = ("l2", "kl")
+RETRIEVED_LATENTS = ("stored", "reencode")
+SKILL_NORMALIZATION_MODES = (NormalizationMode.IDENTITY, NormalizationMode.MEAN_STD, NormalizationMode.MIN_MAX)
 
 
 @PreTrainedConfig.register_subclass("skillret")
@@ -81,13 +83,30 @@ class SkillRetConfig(PreTrainedConfig):
     retrieval_path: str | None = None  # retrieval file written by `skillret-retrieve`
     use_retrieval: bool = True  # False = the paper's "no retrieval" ablation (target windows only)
     finetune_skills: bool = True  # keep training the skill model in stage 2 (Alg. 2, line 17)
+    retrieved_latents: str = "stored"  # labels z' of retrieved windows: "stored" in the retrieval file (paper,
+    # Alg. 2 line 7) or "reencode" with the current, fine-tuned encoder (public implementation)
+    skills_checkpoint_fingerprint: str | None = None  # set by stage 2 from --policy.path; checked against the
+    # retrieval file, kept in config.json so resumed runs check the same stage-1 checkpoint
 
-    normalization_mapping: dict[str, NormalizationMode] = field(
+    # --- Normalisation. The skill model normalises inside the policy with statistics it stores as buffers (set
+    # from the stage-1 dataset, saved with the weights), because `lerobot-train --policy.path` swaps the
+    # processor's statistics for the new dataset's, which would silently rescale a pre-trained decoder's actions.
+    skill_normalization_mapping: dict[str, NormalizationMode] = field(
         default_factory=lambda: {
             "VISUAL": NormalizationMode.IDENTITY,
             "STATE": NormalizationMode.MEAN_STD,
             "ENV": NormalizationMode.MEAN_STD,
             "ACTION": NormalizationMode.MIN_MAX,  # the decoder's tanh output lives in [-1, 1]
+        }
+    )
+    # What LeRobot's processor normaliser steps apply: identity everywhere, so they stay no-ops even when
+    # lerobot-train/eval override their statistics (they pass this mapping as `norm_map`).
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {
+            "VISUAL": NormalizationMode.IDENTITY,
+            "STATE": NormalizationMode.IDENTITY,
+            "ENV": NormalizationMode.IDENTITY,
+            "ACTION": NormalizationMode.IDENTITY,
         }
     )
 
@@ -103,6 +122,19 @@ class SkillRetConfig(PreTrainedConfig):
 
         if self.stage not in STAGES:
             fail("stage", self.stage, f"choose one of {STAGES}")
+        if self.retrieved_latents not in RETRIEVED_LATENTS:
+            fail("retrieved_latents", self.retrieved_latents, f"choose one of {RETRIEVED_LATENTS}")
+        for mode in self.normalization_mapping.values():
+            if NormalizationMode(mode) is not NormalizationMode.IDENTITY:
+                fail(
+                    "normalization_mapping",
+                    self.normalization_mapping,
+                    "skillret normalises inside the model "
+                    "(see skill_normalization_mapping); the processor's mapping must stay IDENTITY",
+                )
+        for kind, mode in self.skill_normalization_mapping.items():
+            if NormalizationMode(mode) not in SKILL_NORMALIZATION_MODES:
+                fail("skill_normalization_mapping", {kind: mode}, f"supported modes: {SKILL_NORMALIZATION_MODES}")
         if self.retrieval_metric not in RETRIEVAL_METRICS:
             fail("retrieval_metric", self.retrieval_metric, f"choose one of {RETRIEVAL_METRICS}")
         for name in (
@@ -147,8 +179,13 @@ class SkillRetConfig(PreTrainedConfig):
 
     @property
     def observation_delta_indices(self) -> list[int]:
-        """The F observations up to the anchor, then the H observations of the window (the decoder needs o_t)."""
-        return list(range(-(self.history - 1), self.horizon))
+        """Stage `policy`: the F observations up to the anchor, then the window's H (the decoder needs o_t).
+
+        Stage `skills` needs no history (Algorithm 1 only sees the window), so it loads only the H window steps:
+        with cameras that halves the frames decoded per sample. The policy accepts either layout.
+        """
+        start = 0 if self.stage == "skills" else -(self.history - 1)
+        return list(range(start, self.horizon))
 
     @property
     def action_delta_indices(self) -> list[int]:

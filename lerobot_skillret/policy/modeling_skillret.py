@@ -1,0 +1,328 @@
+"""`SkillRetPolicy`: the skill VAE and the latent policy as one LeRobot policy, trained in two `lerobot-train` runs.
+
+Stage `skills` (Algorithm 1): `--dataset.*` is the prior (play) dataset; each batch's windows train the skill VAE
+and the policy fetches each window's temporal pair itself. The latent policy is frozen.
+Stage `policy` (Algorithm 2): `--policy.path=<stage-1 pretrained_model>`, `--dataset.*` is the target dataset.
+One forward computes the latent-policy loss on target windows (id 0) and on retrieved prior windows (id 1, read from
+`retrieval_path`), plus the skill loss on target and prior windows (fine-tuning, line 17).
+
+Inputs arrive RAW: the model normalises with statistics it owns as buffers (see `normalization.py`), so the
+processor's normaliser steps are identities and `--policy.path` cannot rescale the pre-trained decoder's actions.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Mapping
+from pathlib import Path
+
+import torch
+from huggingface_hub import ModelCard
+from lerobot.configs.types import FeatureType
+from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.utils.constants import ACTION
+from torch import Tensor
+
+from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
+from lerobot_skillret.policy.latent_policy import RETRIEVED_ID, TARGET_ID, LatentPolicy
+from lerobot_skillret.policy.normalization import SkillNormalizer
+from lerobot_skillret.policy.skills import SkillModel, make_observation_encoder
+
+Batch = Mapping[str, Tensor]
+
+
+class SkillRetPolicy(PreTrainedPolicy):
+    """Skill-based imitation with retrieval from prior data (the `skillret` policy type)."""
+
+    config_class = SkillRetConfig
+    name = "skillret"
+
+    def __init__(
+        self,
+        config: SkillRetConfig,
+        dataset_stats: dict[str, dict[str, Tensor]] | None = None,
+        dataset_meta: object | None = None,
+        **kwargs: object,
+    ) -> None:
+        """`dataset_stats` set the normalisation buffers (loading a checkpoint then overwrites them with the
+        stage-1 ones); `dataset_meta` (LeRobotDatasetMetadata, given by lerobot-train) locates the training
+        dataset on disk for the windows the policy fetches itself."""
+        super().__init__(config)
+        config.validate_features()
+        self.config = config
+        features = config.input_features
+        self.low_dim_keys = sorted(k for k, f in features.items() if f.type in (FeatureType.STATE, FeatureType.ENV))
+        self.image_keys = sorted(k for k, f in features.items() if f.type is FeatureType.VISUAL)
+        self.observation_keys = [*self.low_dim_keys, *self.image_keys]
+        low_dim_shapes = {k: features[k].shape for k in self.low_dim_keys}
+        image_shapes = {k: features[k].shape for k in self.image_keys}
+        action_dim = int(config.action_feature.shape[0])
+
+        self.normalizer = SkillNormalizer(
+            {**features, **config.output_features}, config.skill_normalization_mapping, dataset_stats
+        )
+        self.skills = SkillModel(config, low_dim_shapes, image_shapes, action_dim)
+        self.latent_policy = LatentPolicy(config, make_observation_encoder(config, low_dim_shapes, image_shapes))
+        self.dataset_location = (
+            (str(dataset_meta.repo_id), Path(dataset_meta.root)) if dataset_meta is not None else None
+        )
+        self._training_data = None  # built on the first training forward; never part of the state_dict
+        self._freeze_for_stage()
+        self.reset()
+
+    # --- optimisation -----------------------------------------------------------------------------------------
+
+    def _freeze_for_stage(self) -> None:
+        """Stage 1 trains the skill model only; stage 2 the policy, plus the skills if `finetune_skills`."""
+        self.latent_policy.requires_grad_(self.config.stage == "policy")
+        self.skills.requires_grad_(self.config.stage == "skills" or self.config.finetune_skills)
+
+    def get_optim_params(self) -> list[dict]:
+        """Three Adam groups (Table 7): skill VAE at skill_lr, temporal predictor at tc_lr, policy at policy_lr."""
+        groups = [
+            (self.skills.skill_parameters(), self.config.skill_lr),
+            (list(self.skills.temporal.parameters()), self.config.tc_lr),
+            (list(self.latent_policy.parameters()), self.config.policy_lr),
+        ]
+        return [
+            {"params": trainable, "lr": lr}
+            for params, lr in groups
+            if (trainable := [p for p in params if p.requires_grad])
+        ]
+
+    # --- inputs -----------------------------------------------------------------------------------------------
+
+    def _observations(self, raw: Batch, steps: slice) -> dict[str, Tensor]:
+        device = self._device()
+        missing = [key for key in self.observation_keys if key not in raw]
+        if missing:
+            raise KeyError(f"skillret needs observation key(s) {missing}; the batch has {sorted(raw)}.")
+        return {
+            key: self.normalizer.normalize(key, raw[key][:, steps].to(device, torch.float32))
+            for key in self.observation_keys
+        }
+
+    def _window(self, raw: Batch) -> dict[str, Tensor]:
+        """The last H steps of a raw window, normalised, with `valid` = not padded past the episode's end.
+
+        Normalised actions are clipped to [-1, 1], the range of the decoder's tanh (target data may exceed the
+        prior's range)."""
+        horizon = self.config.horizon
+        actions = raw[ACTION].to(self._device(), torch.float32)
+        if actions.ndim != 3 or actions.shape[1] != horizon:
+            raise ValueError(f"skillret expects `action` windows (B, H={horizon}, A); got {tuple(actions.shape)}.")
+        window = self._observations(raw, slice(-horizon, None))
+        window[ACTION] = self.normalizer.normalize(ACTION, actions).clamp(-1.0, 1.0)
+        pad = raw.get(f"{ACTION}_is_pad")
+        window["valid"] = (
+            ~pad.to(self._device(), torch.bool)
+            if pad is not None
+            else torch.ones(actions.shape[:2], dtype=torch.bool, device=self._device())
+        )
+        return window
+
+    def _history(self, raw: Batch) -> dict[str, Tensor]:
+        """The F observations ending at the anchor, from a window with steps -(F-1)..H-1."""
+        history, horizon = self.config.history, self.config.horizon
+        steps = raw[self.observation_keys[0]].shape[1]
+        if steps != history + horizon - 1:
+            raise ValueError(
+                f"stage `policy` needs observation windows of F+H-1={history + horizon - 1} steps (deltas "
+                f"-(F-1)..H-1); got {steps}. Use the config's observation_delta_indices with --policy.stage=policy."
+            )
+        return self._observations(raw, slice(0, history))
+
+    def _device(self) -> torch.device:
+        return next(self.skills.parameters()).device
+
+    # --- training ---------------------------------------------------------------------------------------------
+
+    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
+        """One training step's loss and its terms (Python floats), for the configured stage."""
+        self.normalizer.check_ready()
+        data = self._data()
+        if self.config.stage == "skills":
+            loss, terms, _ = self._skill_loss([(batch, data.own)])
+            return loss, {name: float(value) for name, value in terms.items()}
+        return self._stage2_loss(batch, data)
+
+    def _data(self):
+        from lerobot_skillret.policy.training_data import TrainingData
+
+        if self._training_data is None:
+            self._training_data = TrainingData.build(self)
+        return self._training_data
+
+    def _skill_loss(self, sources: list) -> tuple[Tensor, dict[str, Tensor], Tensor]:
+        """Algorithm 1's loss over the windows of several (raw batch, its WindowSource) pairs at once.
+
+        Each source supplies the temporal pair of its own windows (same episode). Returns the loss, its detached
+        terms, and the encoder means of all windows (in order), used as stage-2 labels."""
+        config, device = self.config, self._device()
+        windows, pairs, offsets, slow = [], [], [], []
+        for raw, source in sources:
+            windows.append(self._window(raw))
+            anchors = raw["index"].reshape(-1)
+            pair, offset = source.pair(anchors, config.tc_max_offset, device)
+            pairs.append(self._window(pair))
+            offsets.append(offset)
+            if config.slowness_weight > 0:
+                slow_pair, _ = source.pair(anchors, config.slowness_max_offset, device)
+                slow.append(self._window(slow_pair))
+
+        def join(parts: list[dict[str, Tensor]]) -> dict[str, Tensor] | None:
+            return {key: torch.cat([p[key] for p in parts]) for key in parts[0]} if parts else None
+
+        loss, terms, means = self.skills.loss(join(windows), join(pairs), torch.cat(offsets), join(slow))
+        return loss, {name: value.detach() for name, value in terms.items()}, means
+
+    def _stage2_loss(self, batch: Batch, data) -> tuple[Tensor, dict[str, float]]:
+        """L_policy on target (id 0) and retrieved (id 1) windows, + L_skill on target and prior windows."""
+        config, device = self.config, self._device()
+        size = batch[ACTION].shape[0]
+        terms: dict[str, Tensor] = {}
+        loss = torch.zeros((), device=device)
+
+        if config.finetune_skills:
+            sources = [(batch, data.own)]
+            if data.prior is not None:
+                sources.append((data.prior.sample(size, device), data.prior))
+            skill_loss, skill_terms, means = self._skill_loss(sources)
+            labels = means[:size].detach()
+            loss = loss + skill_loss
+            terms.update(skill_terms)
+        else:
+            with torch.no_grad():
+                labels, _ = self.skills.encoder(self._window(batch))
+
+        target_ids = torch.full((size,), TARGET_ID, dtype=torch.long, device=device)
+        predicted = self.latent_policy(self._history(batch), target_ids)
+        policy_loss = (predicted - labels).pow(2).sum(dim=-1).mean()
+        terms["policy_target_loss"] = policy_loss.detach()
+
+        if data.retrieved is not None:
+            retrieved, stored = data.retrieved.sample(size, device)
+            if config.retrieved_latents == "stored":
+                retrieved_labels = stored
+            else:
+                with torch.no_grad():
+                    retrieved_labels, _ = self.skills.encoder(self._window(retrieved))
+            retrieved_ids = torch.full((size,), RETRIEVED_ID, dtype=torch.long, device=device)
+            predicted_retrieved = self.latent_policy(self._history(retrieved), retrieved_ids)
+            retrieved_loss = (predicted_retrieved - retrieved_labels).pow(2).sum(dim=-1).mean()
+            policy_loss = policy_loss + config.retrieved_weight * retrieved_loss
+            terms["policy_retrieved_loss"] = retrieved_loss.detach()
+
+        terms["policy_loss"] = policy_loss.detach()
+        return loss + policy_loss, {name: float(value) for name, value in terms.items()}
+
+    # --- retrieval --------------------------------------------------------------------------------------------
+
+    @torch.no_grad()
+    def encode_skill(self, window: Mapping[str, Tensor]) -> tuple[Tensor, Tensor]:
+        """Encoder (mean, log_var), each (B, latent_dim), of RAW windows as `WindowSampler.gather` returns them.
+
+        Observation keys may hold F+H-1 or H steps (the last H are used), `action` (B, H, A); `action_is_pad`, if
+        present, marks steps past the episode's end, which the encoder ignores. Uses the stage-1 statistics."""
+        self.normalizer.check_ready()
+        mean, log_var = self.skills.encoder(self._window(window))
+        return mean, log_var
+
+    # --- inference --------------------------------------------------------------------------------------------
+
+    def reset(self) -> None:
+        """Forget the observation history and the running skill (call at every episode start)."""
+        self._history_frames: deque[dict[str, Tensor]] = deque(maxlen=self.config.history)
+        self._skill: Tensor | None = None
+        self._decoder_state: tuple[Tensor, Tensor] | None = None
+        self._steps_left = 0
+
+    def _push_observation(self, batch: Batch) -> dict[str, Tensor]:
+        """Normalise the current observation (B, ...) and append it to the F-frame history.
+
+        After `reset()` the first observation fills the whole history: the training windows were padded the
+        same way at an episode's start (LeRobot repeats its first frame)."""
+        frame = {
+            key: value[:, 0]
+            for key, value in self._observations(
+                {key: batch[key][:, None] for key in self.observation_keys}, slice(None)
+            ).items()
+        }
+        if not self._history_frames:
+            self._history_frames.extend([frame] * self.config.history)
+        else:
+            self._history_frames.append(frame)
+        return frame
+
+    def _stacked_history(self) -> dict[str, Tensor]:
+        return {key: torch.stack([f[key] for f in self._history_frames], dim=1) for key in self.observation_keys}
+
+    def _choose_skill(self) -> Tensor:
+        history = self._stacked_history()
+        size = history[self.observation_keys[0]].shape[0]
+        ids = torch.full((size,), TARGET_ID, dtype=torch.long, device=self._device())
+        return self.latent_policy(history, ids)
+
+    @torch.no_grad()
+    def select_action(self, batch: dict[str, Tensor]) -> Tensor:
+        """(B, A) unnormalised action. Every H steps z = pi(history, id=target); in between, the closed-loop
+        decoder runs one step on the current observation, its LSTM state carried across the H steps."""
+        self.eval()
+        frame = self._push_observation(batch)
+        if self._steps_left == 0:
+            self.normalizer.check_ready()
+            self._skill = self._choose_skill()
+            self._decoder_state = None
+            self._steps_left = self.config.horizon
+        current = {key: value[:, None] for key, value in frame.items()}
+        action, self._decoder_state = self.skills.decoder(self._skill, current, self._decoder_state)
+        self._steps_left -= 1
+        return self.normalizer.unnormalize(ACTION, action[:, 0])
+
+    @torch.no_grad()
+    def predict_action_chunk(self, batch: dict[str, Tensor]) -> Tensor:
+        """(B, H, A): the skill the policy picks now (history + this observation), decoded for H steps.
+
+        The decoder is closed-loop and needs each step's observation, which a chunk cannot know in advance; the
+        chunk therefore holds the current observation for all H steps (an open-loop preview). Rollouts use
+        `select_action`, which feeds the real observations. The running history and skill are not modified."""
+        self.eval()
+        self.normalizer.check_ready()
+        saved = (self._history_frames.copy(), self._skill, self._decoder_state, self._steps_left)
+        try:
+            frame = self._push_observation(batch)
+            skill = self._choose_skill()
+        finally:
+            self._history_frames, self._skill, self._decoder_state, self._steps_left = saved
+        repeated = {
+            key: value[:, None].expand(-1, self.config.horizon, *value.shape[1:]) for key, value in frame.items()
+        }
+        actions, _ = self.skills.decoder(skill, repeated)
+        return self.normalizer.unnormalize(ACTION, actions)
+
+    # --- hub --------------------------------------------------------------------------------------------------
+
+    def generate_model_card(
+        self, dataset_repo_id: str, model_type: str, license: str | None, tags: list[str] | None
+    ) -> ModelCard:
+        """LeRobot's card, listing the prior dataset too and saying what the method is."""
+        datasets = [dataset_repo_id, *([self.config.prior_repo_id] if self.config.prior_repo_id else [])]
+        card = super().generate_model_card(
+            datasets if len(datasets) > 1 else dataset_repo_id,
+            model_type,
+            license,
+            list({*(tags or []), "skill-learning", "retrieval", "imitation-learning"}),
+        )
+        method = (
+            "\n## Method: skill-based imitation with retrieval from prior data (skillret)\n\n"
+            "A skill VAE (LSTM encoder, closed-loop LSTM decoder, learned prior, temporal-prediction loss) is "
+            f"pre-trained on H={self.config.horizon}-step windows of the prior dataset "
+            f"(`{self.config.prior_repo_id or 'none'}`). Prior windows whose skill latents lie closest to the "
+            f"target dataset's (`{dataset_repo_id}`) are retrieved, and an LSTM policy over the last "
+            f"F={self.config.history} observations learns to predict skill latents on target and retrieved windows "
+            "while the skill model is fine-tuned. At rollout the policy picks a skill every H steps and the "
+            "decoder executes it closed-loop.\n\n"
+            f"Stage of this checkpoint: `{self.config.stage}`. Retrieval file: "
+            f"`{self.config.retrieval_path or 'none'}` (retrieval {'on' if self.config.use_retrieval else 'off'}).\n"
+        )
+        return ModelCard(card.content + method)

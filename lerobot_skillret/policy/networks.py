@@ -1,0 +1,129 @@
+"""Building blocks shared by every skillret module: MLPs, the observation encoder, spatial-softmax pooling.
+
+The seed (C.1) gives each of the four observation-taking modules (skill encoder, decoder, prior, policy) its own
+observation encoder: an MLP for the low-dimensional inputs and, per camera, a ResNet-18 trained from scratch whose
+feature map is pooled to keypoints by a spatial softmax, with random-crop augmentation during training.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import torch
+import torchvision
+from torch import Tensor, nn
+
+
+def mlp(in_dim: int, hidden: Sequence[int], out_dim: int | None = None) -> nn.Sequential:
+    """Linear+ReLU layers of widths `hidden`, then an optional linear output layer (no activation)."""
+    layers: list[nn.Module] = []
+    for width in hidden:
+        layers += [nn.Linear(in_dim, width), nn.ReLU()]
+        in_dim = width
+    if out_dim is not None:
+        layers.append(nn.Linear(in_dim, out_dim))
+    return nn.Sequential(*layers)
+
+
+def mlp_out_dim(in_dim: int, hidden: Sequence[int], out_dim: int | None = None) -> int:
+    """Width of what `mlp(in_dim, hidden, out_dim)` returns."""
+    if out_dim is not None:
+        return out_dim
+    return hidden[-1] if hidden else in_dim
+
+
+class SpatialSoftmax(nn.Module):
+    """Feature map (N, C, H, W) -> expected image coordinates of K learned keypoints, (N, 2K).
+
+    A 1x1 convolution makes K heat maps; a softmax over each map's pixels gives a distribution whose mean (x, y)
+    in [-1, 1] is the keypoint. It keeps *where* things are, which average pooling throws away.
+    """
+
+    def __init__(self, in_channels: int, height: int, width: int, num_keypoints: int) -> None:
+        super().__init__()
+        self.keypoints = nn.Conv2d(in_channels, num_keypoints, kernel_size=1)
+        ys, xs = torch.meshgrid(torch.linspace(-1, 1, height), torch.linspace(-1, 1, width), indexing="ij")
+        self.register_buffer("grid", torch.stack([xs.reshape(-1), ys.reshape(-1)], dim=1), persistent=False)
+
+    def forward(self, features: Tensor) -> Tensor:
+        maps = self.keypoints(features).flatten(2)  # (N, K, H*W)
+        attention = torch.softmax(maps, dim=-1)
+        return (attention @ self.grid).flatten(1)  # (N, K, 2) -> (N, 2K)
+
+
+def random_crop(images: Tensor, size: tuple[int, int], generator: torch.Generator | None = None) -> Tensor:
+    """An independent random (h, w) crop of each image in (N, C, H, W)."""
+    n, _, height, width = images.shape
+    ch, cw = size
+    top = torch.randint(0, height - ch + 1, (n,), device=images.device, generator=generator)
+    left = torch.randint(0, width - cw + 1, (n,), device=images.device, generator=generator)
+    rows = (top[:, None] + torch.arange(ch, device=images.device))[:, None, :, None]  # (N, 1, ch, 1)
+    cols = (left[:, None] + torch.arange(cw, device=images.device))[:, None, None, :]  # (N, 1, 1, cw)
+    batch = torch.arange(n, device=images.device)[:, None, None, None]
+    channels = torch.arange(images.shape[1], device=images.device)[None, :, None, None]
+    return images[batch, channels, rows, cols]
+
+
+def center_crop(images: Tensor, size: tuple[int, int]) -> Tensor:
+    height, width = images.shape[-2:]
+    top, left = (height - size[0]) // 2, (width - size[1]) // 2
+    return images[..., top : top + size[0], left : left + size[1]]
+
+
+class CameraEncoder(nn.Module):
+    """One camera: crop -> ResNet-18 trunk (no ImageNet weights, as in the seed) -> spatial softmax keypoints."""
+
+    def __init__(self, image_shape: Sequence[int], crop_shape: tuple[int, int] | None, num_keypoints: int) -> None:
+        super().__init__()
+        channels, height, width = image_shape
+        self.crop_shape = tuple(crop_shape) if crop_shape is not None else None
+        resnet = torchvision.models.resnet18(weights=None)
+        if channels != 3:
+            resnet.conv1 = nn.Conv2d(channels, 64, kernel_size=7, stride=2, padding=3, bias=False)
+        self.trunk = nn.Sequential(*list(resnet.children())[:-2])  # drop average pooling and the classifier
+        in_h, in_w = self.crop_shape or (height, width)
+        with torch.no_grad():
+            feature_shape = self.trunk(torch.zeros(1, channels, in_h, in_w)).shape
+        self.pool = SpatialSoftmax(feature_shape[1], feature_shape[2], feature_shape[3], num_keypoints)
+        self.out_dim = 2 * num_keypoints
+
+    def forward(self, images: Tensor) -> Tensor:
+        """(N, C, H, W) floats in [0, 1] -> (N, 2K)."""
+        if self.crop_shape is not None:
+            images = random_crop(images, self.crop_shape) if self.training else center_crop(images, self.crop_shape)
+        return self.pool(self.trunk(images))
+
+
+class ObservationEncoder(nn.Module):
+    """Observation dict of (B, T, ...) tensors -> (B, T, out_dim): low-dim MLP and camera keypoints, concatenated.
+
+    `low_dim_keys` are concatenated in the given order (one order for every module), cameras follow.
+    """
+
+    def __init__(
+        self,
+        low_dim_shapes: Mapping[str, Sequence[int]],
+        image_shapes: Mapping[str, Sequence[int]],
+        low_dim_mlp: Sequence[int],
+        crop_shape: tuple[int, int] | None,
+        num_keypoints: int,
+    ) -> None:
+        super().__init__()
+        self.low_dim_keys = list(low_dim_shapes)
+        self.image_keys = list(image_shapes)
+        low_dim = sum(int(shape[0]) for shape in low_dim_shapes.values())
+        self.low_dim_net = mlp(low_dim, low_dim_mlp) if self.low_dim_keys else None
+        self.cameras = nn.ModuleList(CameraEncoder(shape, crop_shape, num_keypoints) for shape in image_shapes.values())
+        self.out_dim = (mlp_out_dim(low_dim, low_dim_mlp) if self.low_dim_keys else 0) + sum(
+            camera.out_dim for camera in self.cameras
+        )
+
+    def forward(self, observation: Mapping[str, Tensor]) -> Tensor:
+        parts = []
+        if self.low_dim_net is not None:
+            parts.append(self.low_dim_net(torch.cat([observation[key] for key in self.low_dim_keys], dim=-1)))
+        for key, camera in zip(self.image_keys, self.cameras, strict=True):
+            images = observation[key]
+            lead = images.shape[:-3]
+            parts.append(camera(images.reshape(-1, *images.shape[-3:])).reshape(*lead, camera.out_dim))
+        return parts[0] if len(parts) == 1 else torch.cat(parts, dim=-1)

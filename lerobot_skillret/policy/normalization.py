@@ -1,0 +1,85 @@
+"""The skill model's own normalisation: statistics held as persistent buffers inside the policy.
+
+Why not LeRobot's processor: `lerobot-train --policy.path=<stage 1>` replaces the processor's statistics with the
+target dataset's, which would silently rescale the actions a pre-trained decoder emits. Buffers travel in
+`model.safetensors` instead: set once from the stage-1 dataset, then kept through stage 2, evaluation and the hub.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+import torch
+from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
+from torch import Tensor, nn
+
+MIN_SCALE = 1e-2  # floor of a std / half-range: a dimension constant in stage-1 data must not explode later
+
+
+def _buffer_name(key: str) -> str:
+    return key.replace(".", "__")
+
+
+class SkillNormalizer(nn.Module):
+    """x_norm = (x - shift) / scale per feature, from MEAN_STD (mean, std) or MIN_MAX (to [-1, 1]) statistics.
+
+    Until statistics are set the buffers hold NaN, and `check_ready` refuses to train or act on them.
+    """
+
+    def __init__(
+        self,
+        features: Mapping[str, PolicyFeature],
+        mapping: Mapping[str, NormalizationMode],
+        stats: Mapping[str, Mapping[str, object]] | None = None,
+    ) -> None:
+        super().__init__()
+        self.modes: dict[str, NormalizationMode] = {}
+        for key, feature in features.items():
+            mode = NormalizationMode(mapping.get(feature.type.value, NormalizationMode.IDENTITY))
+            if feature.type is FeatureType.VISUAL or mode is NormalizationMode.IDENTITY:
+                continue
+            self.modes[key] = mode
+            dim = int(np.prod(feature.shape))
+            self.register_buffer(f"{_buffer_name(key)}_shift", torch.full((dim,), torch.nan))
+            self.register_buffer(f"{_buffer_name(key)}_scale", torch.full((dim,), torch.nan))
+        if stats is not None:
+            self.set_stats(stats)
+
+    def set_stats(self, stats: Mapping[str, Mapping[str, object]]) -> None:
+        """Copy dataset statistics (LeRobot's `meta.stats` layout) into the buffers."""
+        for key, mode in self.modes.items():
+            if key not in stats:
+                raise KeyError(f"skillret normalisation: the dataset statistics have no entry for `{key}`.")
+            entry = {
+                name: torch.as_tensor(np.asarray(value), dtype=torch.float32).reshape(-1)
+                for name, value in stats[key].items()
+                if name in ("mean", "std", "min", "max")
+            }
+            if mode is NormalizationMode.MEAN_STD:
+                shift, scale = entry["mean"], entry["std"]
+            else:
+                shift, scale = (entry["max"] + entry["min"]) / 2, (entry["max"] - entry["min"]) / 2
+            getattr(self, f"{_buffer_name(key)}_shift").copy_(shift)
+            getattr(self, f"{_buffer_name(key)}_scale").copy_(scale.clamp_min(MIN_SCALE))
+
+    def check_ready(self) -> None:
+        """Refuse NaN statistics: a policy built without dataset stats and without loaded weights."""
+        for key in self.modes:
+            if torch.isnan(getattr(self, f"{_buffer_name(key)}_shift")).any():
+                raise RuntimeError(
+                    f"skillret has no normalisation statistics for `{key}`: build it with the stage-1 dataset's "
+                    "stats (lerobot-train does) or load a trained checkpoint (from_pretrained / --policy.path)."
+                )
+
+    def normalize(self, key: str, value: Tensor) -> Tensor:
+        if key not in self.modes:
+            return value
+        name = _buffer_name(key)
+        return (value - getattr(self, f"{name}_shift")) / getattr(self, f"{name}_scale")
+
+    def unnormalize(self, key: str, value: Tensor) -> Tensor:
+        if key not in self.modes:
+            return value
+        name = _buffer_name(key)
+        return value * getattr(self, f"{name}_scale") + getattr(self, f"{name}_shift")

@@ -1,0 +1,117 @@
+"""Which extra windows each training stage reads, and from where (built once, on the first training forward).
+
+Stage `skills`: temporal pairs from the training dataset itself.
+Stage `policy`: temporal pairs from the target dataset (`--dataset.*`); prior windows for skill fine-tuning
+(`prior_repo_id` / `prior_root`); retrieved windows: the prior windows listed in the retrieval file
+(`retrieval_path`), checked against the datasets and the stage-1 checkpoint that produced it.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import torch
+from torch import Tensor
+
+from lerobot_skillret.data.fingerprint import checkpoint_fingerprint
+from lerobot_skillret.policy.window_source import WindowSource
+from lerobot_skillret.retrieval.schema import RetrievalResult
+
+if TYPE_CHECKING:
+    from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
+
+
+@dataclass
+class RetrievedWindows:
+    """D_ret (Algorithm 2, line 7): prior windows at `prior_index` with the latents stored at retrieval time."""
+
+    source: WindowSource
+    prior_index: Tensor  # (K,) global frame index of each window's anchor in the prior dataset
+    latent: Tensor  # (K, latent_dim)
+
+    def sample(self, size: int, device: torch.device) -> tuple[dict[str, Tensor], Tensor]:
+        """`size` retrieved windows drawn uniformly (with replacement) and their stored latents."""
+        pick = torch.randint(0, len(self.prior_index), (size,))
+        return self.source.gather(self.prior_index[pick], device), self.latent[pick].to(device)
+
+
+@dataclass
+class TrainingData:
+    own: WindowSource
+    prior: WindowSource | None = None
+    retrieved: RetrievedWindows | None = None
+
+    @classmethod
+    def build(cls, policy: SkillRetPolicy) -> TrainingData:
+        config = policy.config
+        if policy.dataset_location is None:
+            raise RuntimeError(
+                "skillret training fetches temporal pairs from the training dataset on disk, but the policy was "
+                "built without `dataset_meta`. Train with lerobot-train (it passes it), or build the policy with "
+                "SkillRetPolicy(config, dataset_stats=meta.stats, dataset_meta=LeRobotDatasetMetadata(repo_id, root))."
+            )
+        repo_id, root = policy.dataset_location
+        keys = (policy.low_dim_keys, policy.image_keys)
+        own = WindowSource(repo_id, root, *keys, history=1, horizon=config.horizon)
+        if config.stage == "skills":
+            return cls(own=own)
+
+        prior = None
+        if config.prior_repo_id is not None and (config.finetune_skills or config.use_retrieval):
+            if config.prior_root is None:
+                raise ValueError(
+                    "`prior_root` is not set: skillret reads the prior dataset from disk. Pass "
+                    "--policy.prior_root=<folder of the prior LeRobotDataset> (or --policy.prior_repo_id=null for "
+                    "the 'no prior data' ablation)."
+                )
+            prior = WindowSource(
+                config.prior_repo_id, config.prior_root, *keys, history=config.history, horizon=config.horizon
+            )
+        retrieved = cls._retrieved(policy, own, prior) if config.use_retrieval else None
+        return cls(own=own, prior=prior if config.finetune_skills else None, retrieved=retrieved)
+
+    @staticmethod
+    def _retrieved(policy: SkillRetPolicy, own: WindowSource, prior: WindowSource | None) -> RetrievedWindows | None:
+        config = policy.config
+        if prior is None:
+            raise ValueError(
+                "`use_retrieval` is true but `prior_repo_id` is not set: retrieval needs the prior dataset. Pass "
+                "--policy.prior_repo_id and --policy.prior_root, or --policy.use_retrieval=false (no retrieval)."
+            )
+        if config.retrieval_path is None:
+            raise ValueError(
+                "`use_retrieval` is true but `retrieval_path` is not set. Run `skillret-retrieve` on the stage-1 "
+                "checkpoint and pass --policy.retrieval_path=<file>, or --policy.use_retrieval=false."
+            )
+        if config.skills_checkpoint_fingerprint is None:
+            if config.pretrained_path is None:
+                raise ValueError(
+                    "Retrieval latents come from a stage-1 skill checkpoint, but this stage-2 run starts from "
+                    "scratch. Pass --policy.path=<stage-1 checkpoint>/pretrained_model."
+                )
+            config.skills_checkpoint_fingerprint = checkpoint_fingerprint(config.pretrained_path)
+        result = RetrievalResult.load(config.retrieval_path)
+        result.check_compatible(
+            prior_fingerprint=prior.columns.fingerprint,
+            target_fingerprint=own.columns.fingerprint,
+            checkpoint_fingerprint=config.skills_checkpoint_fingerprint,
+        )
+        if len(result) == 0:
+            logging.warning(
+                "skillret: the retrieval file %s selects no window; training without retrieved data.",
+                config.retrieval_path,
+            )
+            return None
+        if int(result.prior_index.min()) < 0 or int(result.prior_index.max()) >= len(prior):
+            raise ValueError(
+                f"The retrieval file {config.retrieval_path} indexes frames outside the prior dataset "
+                f"(0..{len(prior) - 1}); it was computed on another dataset. Re-run `skillret-retrieve`."
+            )
+        if result.latent.shape[1] != config.latent_dim:
+            raise ValueError(
+                f"The retrieval file's latents have {result.latent.shape[1]} dimensions but `latent_dim` is "
+                f"{config.latent_dim}: it was computed with another skill model. Re-run `skillret-retrieve`."
+            )
+        return RetrievedWindows(prior, result.prior_index, result.latent)

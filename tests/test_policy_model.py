@@ -1,0 +1,288 @@
+"""SkillRetPolicy: shapes, masks, losses and their gradients, both stages' forward, inference, normalisation."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+from policy_fixtures import (
+    PRIOR_REPO,
+    TARGET_REPO,
+    batch_at,
+    build_policy,
+    tiny_config,
+    training_batch,
+)
+from synthetic import make_synthetic_dataset
+
+from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
+from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
+from lerobot_skillret.policy.latent_policy import RETRIEVED_ID, TARGET_ID
+from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
+from lerobot_skillret.policy.processor_skillret import make_skillret_pre_post_processors
+from lerobot_skillret.retrieval.schema import RetrievalResult
+
+
+@pytest.fixture(scope="module")
+def prior_root(tmp_path_factory) -> Path:
+    return make_synthetic_dataset(tmp_path_factory.mktemp("prior") / "ds", PRIOR_REPO, num_episodes=6, seed=0)
+
+
+@pytest.fixture(scope="module")
+def target_root(tmp_path_factory) -> Path:
+    # Scaled differently from the prior (other seed, other statistics): catches any use of the wrong stats.
+    return make_synthetic_dataset(tmp_path_factory.mktemp("target") / "ds", TARGET_REPO, num_episodes=3, seed=1)
+
+
+@pytest.fixture(scope="module")
+def stage1_dir(prior_root, tmp_path_factory) -> Path:
+    torch.manual_seed(0)
+    policy = build_policy(tiny_config(), PRIOR_REPO, prior_root)
+    folder = tmp_path_factory.mktemp("stage1") / "pretrained_model"
+    policy.save_pretrained(folder)
+    return folder
+
+
+def stage2_policy(stage1_dir: Path, target_root: Path, **overrides) -> SkillRetPolicy:
+    """Stage 2 as lerobot-train builds it from --policy.path: the target's stats are handed in, then weights load."""
+    config = tiny_config(stage="policy", **overrides)
+    config.pretrained_path = stage1_dir
+    meta = LeRobotDatasetMetadata(TARGET_REPO, root=target_root)
+    stage1 = SkillRetPolicy.from_pretrained(stage1_dir)
+    config.input_features, config.output_features = stage1.config.input_features, stage1.config.output_features
+    return SkillRetPolicy.from_pretrained(stage1_dir, config=config, dataset_stats=meta.stats, dataset_meta=meta)
+
+
+def write_retrieval(path: Path, stage1_dir: Path, prior_root: Path, target_root: Path, indices: list[int]) -> Path:
+    stage1 = SkillRetPolicy.from_pretrained(stage1_dir)
+    sampler = WindowSampler(EpisodeColumns.from_dataset(PRIOR_REPO, prior_root), history=3, horizon=4)
+    latent, _ = stage1.encode_skill(sampler.gather(torch.tensor(indices)))
+    return RetrievalResult(
+        prior_index=torch.tensor(indices),
+        distance=torch.zeros(len(indices)),
+        latent=latent,
+        settings={"metric": "l2"},
+        checkpoint_fingerprint=checkpoint_fingerprint(stage1_dir),
+        prior_fingerprint=dataset_fingerprint(prior_root),
+        target_fingerprint=dataset_fingerprint(target_root),
+    ).save(path)
+
+
+def test_stage1_forward_shapes_and_terms(prior_root):
+    config = tiny_config()
+    policy = build_policy(config, PRIOR_REPO, prior_root)
+    batch = training_batch(config, PRIOR_REPO, prior_root)
+    assert batch["observation.state"].shape[1] == config.horizon  # stage 1 loads no history
+    loss, info = policy.forward(batch)
+    assert loss.ndim == 0 and torch.isfinite(loss)
+    assert set(info) == {"reconstruction_loss", "kl_loss", "tc_loss"}
+    assert all(isinstance(v, float) and v > 0 for v in info.values())
+    # stage 1 trains the skill model only
+    assert not any(p.requires_grad for p in policy.latent_policy.parameters())
+    lrs = sorted(group["lr"] for group in policy.get_optim_params())
+    assert lrs == sorted([config.skill_lr, config.tc_lr])
+
+
+def test_overfitting_one_batch_reduces_reconstruction(prior_root):
+    torch.manual_seed(0)
+    config = tiny_config(skill_lr=3e-3)
+    policy = build_policy(config, PRIOR_REPO, prior_root)
+    batch = training_batch(config, PRIOR_REPO, prior_root)
+    optimizer = torch.optim.Adam(policy.get_optim_params())
+    first = None
+    for _ in range(150):
+        loss, info = policy.forward(batch)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        first = first if first is not None else info["reconstruction_loss"]
+    assert info["reconstruction_loss"] < 0.3 * first
+
+
+def _grad_norm(module: torch.nn.Module) -> float:
+    return sum(float(p.grad.norm()) for p in module.parameters() if p.grad is not None)
+
+
+def test_kl_and_temporal_terms_reach_the_encoder(prior_root):
+    config = tiny_config()
+    policy = build_policy(config, PRIOR_REPO, prior_root)
+    batch = training_batch(config, PRIOR_REPO, prior_root)
+    window = policy._window(batch)
+    pair_raw, offset = policy._data().own.pair(batch["index"], config.tc_max_offset, "cpu")
+    _, terms, _ = policy.skills.loss(window, policy._window(pair_raw), offset)
+    assert float(terms["kl_loss"]) > 0 and float(terms["tc_loss"]) > 0
+    for name in ("kl_loss", "tc_loss"):
+        policy.zero_grad()
+        terms[name].backward(retain_graph=True)
+        assert _grad_norm(policy.skills.encoder) > 0, f"{name} does not reach the skill encoder"
+    assert _grad_norm(policy.skills.temporal) > 0
+
+
+def test_padded_steps_do_not_contribute(prior_root):
+    config = tiny_config()
+    policy = build_policy(config, PRIOR_REPO, prior_root).eval()  # eval: z = mean, deterministic
+    columns = EpisodeColumns.from_dataset(PRIOR_REPO, prior_root)
+    ends = torch.unique(columns.td["episode_end"]).tolist()
+    batch = batch_at(config, PRIOR_REPO, prior_root, [end - 2 for end in ends] + [ends[0] - 1])
+    assert batch["action_is_pad"].any()
+    pad = batch["action_is_pad"]
+    changed = dict(batch)
+    changed["action"] = torch.where(pad[..., None], torch.full_like(batch["action"], 0.9), batch["action"])
+    for key in ("observation.state", "observation.environment_state"):
+        changed[key] = torch.where(pad[..., None], batch[key] + 5.0, batch[key])
+    pair_raw, offset = policy._data().own.pair(batch["index"], config.tc_max_offset, "cpu")
+    pair = policy._window(pair_raw)
+    total, terms, mean = policy.skills.loss(policy._window(batch), pair, offset)
+    total2, terms2, mean2 = policy.skills.loss(policy._window(changed), pair, offset)
+    assert torch.equal(mean, mean2)
+    assert torch.allclose(total, total2) and all(torch.allclose(terms[k], terms2[k]) for k in terms)
+    # and the change is visible when the steps are NOT marked padded
+    unmasked = dict(changed)
+    unmasked["action_is_pad"] = torch.zeros_like(pad)
+    total3, _, _ = policy.skills.loss(policy._window(unmasked), pair, offset)
+    assert not torch.allclose(total, total3)
+
+
+def test_encode_skill_takes_history_or_window_only(prior_root):
+    config = tiny_config()
+    policy = build_policy(config, PRIOR_REPO, prior_root).eval()
+    sampler = WindowSampler(EpisodeColumns.from_dataset(PRIOR_REPO, prior_root), history=3, horizon=4)
+    window = sampler.gather(torch.tensor([0, 5, 17, 40]))
+    mean, log_var = policy.encode_skill(window)
+    assert mean.shape == log_var.shape == (4, config.latent_dim)
+    cut = {k: (v[:, -config.horizon :] if k.startswith("observation.") else v) for k, v in window.items()}
+    assert torch.allclose(policy.encode_skill(cut)[0], mean)
+
+
+def test_dataset_id_changes_the_policy_output(prior_root):
+    config = tiny_config(stage="policy")
+    policy = build_policy(config, PRIOR_REPO, prior_root)
+    history = policy._history(training_batch(config, PRIOR_REPO, prior_root))
+    size = history["observation.state"].shape[0]
+    z_target = policy.latent_policy(history, torch.full((size,), TARGET_ID))
+    z_retrieved = policy.latent_policy(history, torch.full((size,), RETRIEVED_ID))
+    assert z_target.shape == (size, config.latent_dim)
+    assert not torch.allclose(z_target, z_retrieved)
+
+
+def test_stage2_forward_with_retrieval_and_ablations(stage1_dir, prior_root, target_root, tmp_path):
+    retrieval = write_retrieval(tmp_path / "ret.safetensors", stage1_dir, prior_root, target_root, [1, 9, 30, 77])
+    prior = dict(prior_repo_id=PRIOR_REPO, prior_root=str(prior_root))
+    policy = stage2_policy(stage1_dir, target_root, retrieval_path=str(retrieval), **prior).train()
+    batch = training_batch(policy.config, TARGET_REPO, target_root)
+    assert batch["observation.state"].shape[1] == policy.config.history + policy.config.horizon - 1
+    loss, info = policy.forward(batch)
+    assert {"policy_target_loss", "policy_retrieved_loss", "reconstruction_loss", "tc_loss"} <= set(info)
+    assert len(policy.get_optim_params()) == 3
+    loss.backward()
+    assert _grad_norm(policy.latent_policy) > 0 and _grad_norm(policy.skills.decoder) > 0
+    assert policy.config.skills_checkpoint_fingerprint == checkpoint_fingerprint(stage1_dir)
+
+    # "stored" labels are the file's latents; "reencode" uses the current encoder: same here (no update yet)
+    reencode = stage2_policy(
+        stage1_dir, target_root, retrieval_path=str(retrieval), retrieved_latents="reencode", **prior
+    )
+    assert reencode.forward(batch)[1].keys() == info.keys()
+
+    no_retrieval = stage2_policy(stage1_dir, target_root, use_retrieval=False, **prior)
+    _, info = no_retrieval.forward(batch)
+    assert "policy_retrieved_loss" not in info and "policy_target_loss" in info
+    no_prior = stage2_policy(stage1_dir, target_root, use_retrieval=False)
+    _, info = no_prior.forward(batch)
+    assert "reconstruction_loss" in info and no_prior._data().prior is None
+    frozen = stage2_policy(stage1_dir, target_root, use_retrieval=False, finetune_skills=False)
+    _, info = frozen.forward(batch)
+    assert "reconstruction_loss" not in info and not any(p.requires_grad for p in frozen.skills.parameters())
+
+
+def test_stage2_refuses_bad_retrieval_setups(stage1_dir, prior_root, target_root, tmp_path):
+    batch = training_batch(tiny_config(stage="policy"), TARGET_REPO, target_root)
+    with pytest.raises(ValueError, match="prior_repo_id"):
+        stage2_policy(stage1_dir, target_root).forward(batch)
+    with pytest.raises(ValueError, match="retrieval_path"):
+        stage2_policy(stage1_dir, target_root, prior_repo_id=PRIOR_REPO, prior_root=str(prior_root)).forward(batch)
+    wrong = write_retrieval(tmp_path / "wrong.safetensors", stage1_dir, prior_root, prior_root, [1, 2])
+    with pytest.raises(ValueError, match="different target dataset"):
+        stage2_policy(
+            stage1_dir, target_root, prior_repo_id=PRIOR_REPO, prior_root=str(prior_root), retrieval_path=str(wrong)
+        ).forward(batch)
+
+
+def test_select_action_runs_skills_closed_loop(prior_root):
+    config = tiny_config()
+    policy = build_policy(config, PRIOR_REPO, prior_root)
+    batch = training_batch(config, PRIOR_REPO, prior_root, size=2)
+    policy.reset()
+    calls = []
+    original = policy.latent_policy.forward
+    policy.latent_policy.forward = lambda *a: calls.append(1) or original(*a)
+    actions = []
+    for step in range(2 * config.horizon + 1):
+        observation = {key: batch[key][:, 0] + 0.01 * step for key in policy.observation_keys}
+        actions.append(policy.select_action(observation))
+    assert actions[0].shape == (2, 7)
+    assert len(calls) == 3  # a new skill at steps 0, H, 2H
+    chunk = policy.predict_action_chunk(observation)
+    assert chunk.shape == (2, config.horizon, 7)
+    assert len(policy._history_frames) == config.history and policy._steps_left == config.horizon - 1
+
+
+def test_decoder_scaling_is_the_stage1_one(stage1_dir, target_root):
+    """A stage-2 policy built with the TARGET stats (as lerobot-train does) acts exactly like the stage-1 one,
+    and the processors LeRobot rebuilds with target stats stay identities."""
+    stage1 = SkillRetPolicy.from_pretrained(stage1_dir)
+    stage2 = stage2_policy(stage1_dir, target_root, use_retrieval=False).eval()
+    meta = LeRobotDatasetMetadata(TARGET_REPO, root=target_root)
+    assert not torch.allclose(
+        torch.as_tensor(meta.stats["action"]["max"]).float(),
+        stage1.normalizer.action_scale + stage1.normalizer.action_shift,
+    )
+    observation = {key: torch.randn(3, *stage1.config.input_features[key].shape) for key in stage1.observation_keys}
+    stage1.reset()
+    stage2.reset()
+    for _ in range(6):
+        assert torch.equal(stage1.select_action(observation), stage2.select_action(observation))
+
+    config = stage2.config
+    pre, post = make_skillret_pre_post_processors(config, dataset_stats=meta.stats)
+    # what lerobot-train does with --policy.path: override the normaliser steps with the new dataset's stats
+    folder = stage1_dir.parent / "processors"
+    pre.save_pretrained(folder)
+    post.save_pretrained(folder)
+    from lerobot.processor import PolicyProcessorPipeline
+    from lerobot.processor.converters import policy_action_to_transition, transition_to_policy_action
+
+    features = {**config.input_features, **config.output_features}
+    pre = PolicyProcessorPipeline.from_pretrained(
+        folder,
+        "policy_preprocessor.json",
+        overrides={
+            "normalizer_processor": {
+                "stats": meta.stats,
+                "features": features,
+                "norm_map": config.normalization_mapping,
+            },
+            "device_processor": {"device": "cpu"},
+            "rename_observations_processor": {"rename_map": {}},
+        },
+    )
+    post = PolicyProcessorPipeline.from_pretrained(
+        folder,
+        "policy_postprocessor.json",
+        overrides={
+            "unnormalizer_processor": {
+                "stats": meta.stats,
+                "features": config.output_features,
+                "norm_map": config.normalization_mapping,
+            }
+        },
+        to_transition=policy_action_to_transition,
+        to_output=transition_to_policy_action,
+    )
+    processed = pre(dict(observation))
+    for key, value in observation.items():
+        assert torch.equal(processed[key], value)
+    action = torch.randn(3, 7)
+    assert torch.equal(post(action), action)
