@@ -86,9 +86,9 @@ def greedy(
         raise ValueError("A per-target quota needs each candidate's nearest target index.")
     if not nms_radius and target_quota is None:
         return order[:count].clone()
-    kept: list[int] = []
     if count == 0:
         return torch.empty(0, dtype=torch.int64)
+    kept: list[int] = []
     # A plain Python walk: it stops after `count` keeps, and each step is a few list look-ups.
     blocked = bytearray(int(episode_end.max()) if nms_radius else 0)
     anchor_of = anchors.tolist() if nms_radius else None
