@@ -9,13 +9,14 @@ builds each one through Python lists and HF `datasets` row access (~2-4 ms per w
   The cache is built in a temporary folder and renamed into place, so a concurrent reader sees either no cache or
   a complete one.
 - `WindowSampler` draws anchors uniformly over frames (not over episodes: long episodes are not under-sampled) and
-  gathers windows by clamped index arithmetic plus one `index_select` per key (~1-2 us per window).
+  gathers windows by clamped index arithmetic plus one `np.take` per key (~1-3 us per window).
 
 Why not torchrl: its `SliceSampler` picks an episode first (not uniform over frames) and pads only on the right;
-torchrl 0.14's `Sequence` sample unit has the right semantics but measured ~1.2-2 ms per 256 windows against
-~0.35-0.5 ms for the index arithmetic here (see `benchmarks/windows_throughput.py`). `index_select` also keeps the
-gather fast when torch's intra-op threads are oversubscribed (advanced indexing `x[idx2d]` was measured 100x
-slower there), so the sampler never changes the process-wide thread settings.
+torchrl 0.14's `Sequence` sample unit has the right semantics but is measurably slower than the index arithmetic
+here (numbers: `benchmarks/windows_throughput.py --torchrl`). Why NumPy for the gathers: they must stay fast when
+torch's intra-op threads compete with other work for the cores (training, other processes). Advanced indexing
+`x[idx2d]` was measured 100x slower there and even `index_select` swung from 0.1 to 30 ms per batch of 256, while
+`np.take` is single-threaded by construction; the sampler never changes the process-wide thread settings.
 
 Semantics equal LeRobot's: observation keys get frames anchor-(F-1) .. anchor+H-1, every other key (`action`, and
 any extra low-dim key asked for) gets anchor .. anchor+H-1; positions outside the anchor's episode repeat the
@@ -222,6 +223,11 @@ def _remove_stale(cache_dir: Path, keep: str) -> None:
             shutil.rmtree(old, ignore_errors=True)
 
 
+def _numpy_view(tensor: torch.Tensor) -> np.ndarray:
+    """A NumPy view of a (memory-mapped) tensor's storage."""
+    return tensor.as_subclass(torch.Tensor).numpy()
+
+
 class WindowSampler:
     """Uniform (history F, horizon H) windows over the frames of an `EpisodeColumns` table.
 
@@ -251,12 +257,10 @@ class WindowSampler:
             )
         self.columns = columns
         self.history, self.horizon, self.keys = history, horizon, list(keys)
-        # Plain-tensor views of the memory-mapped storage: MemoryMappedTensor's subclass dispatch made
-        # index_select ~10x slower, and the view shares the same pages (no copy).
-        self._data = {k: columns.td[k].as_subclass(torch.Tensor) for k in (*self.keys, *BOUND_KEYS)}
-        self._episode = columns.td["episode_index"].as_subclass(torch.Tensor)
-        self._obs_offsets = torch.arange(-(history - 1), horizon)
-        self._act_offsets = torch.arange(0, horizon)
+        # NumPy views of the memory-mapped columns (same pages, no copy): see `gather` for why NumPy.
+        self._data = {k: _numpy_view(columns.td[k]) for k in (*self.keys, *BOUND_KEYS, "episode_index")}
+        self._obs_offsets = np.arange(-(history - 1), horizon)
+        self._act_offsets = np.arange(0, horizon)
         self.generator = torch.Generator()
         if seed is None:
             self.generator.seed()
@@ -283,8 +287,9 @@ class WindowSampler:
         """Windows at `anchors` as TensorDict[B]: `<key>` (B, T, *shape), `<key>_is_pad` (B, T), `index`,
         `episode_index` (of the anchor), with T = F+H-1 for observation keys and H otherwise."""
         anchors = self._check_anchors(anchors)
-        start = self._data["episode_start"].index_select(0, anchors)[:, None]
-        end = self._data["episode_end"].index_select(0, anchors)[:, None]
+        index = anchors.numpy()
+        start = self._data["episode_start"][index][:, None]
+        end = self._data["episode_end"][index][:, None]
         windows = {}
         for offsets, keys in (
             (self._obs_offsets, [k for k in self.keys if k.startswith("observation.")]),
@@ -292,15 +297,17 @@ class WindowSampler:
         ):
             if not keys:
                 continue
-            pos = anchors[:, None] + offsets[None, :]
-            is_pad = (pos < start) | (pos >= end)
-            flat = torch.minimum(torch.maximum(pos, start), end - 1).flatten()
+            pos = index[:, None] + offsets[None, :]
+            is_pad = torch.from_numpy((pos < start) | (pos >= end))
+            flat = np.clip(pos, start, end - 1).ravel()
             for key in keys:
                 column = self._data[key]
-                windows[key] = column.index_select(0, flat).reshape(*pos.shape, *column.shape[1:])
+                # np.take, not index_select: see the module docstring (thread oversubscription).
+                values = np.take(column, flat, axis=0).reshape(*pos.shape, *column.shape[1:])
+                windows[key] = torch.from_numpy(values)
                 windows[f"{key}_is_pad"] = is_pad
         windows["index"] = anchors
-        windows["episode_index"] = self._episode.index_select(0, anchors)
+        windows["episode_index"] = torch.from_numpy(self._data["episode_index"][index])
         return TensorDict(windows, batch_size=[len(anchors)])
 
     def sample(self, batch_size: int) -> TensorDict:
@@ -313,8 +320,8 @@ class WindowSampler:
         if max_offset < 0:
             raise ValueError(f"max_offset must be >= 0, got {max_offset}")
         anchors = self._check_anchors(anchors)
-        low = torch.maximum(anchors - max_offset, self._data["episode_start"].index_select(0, anchors))
-        high = torch.minimum(anchors + max_offset, self._data["episode_end"].index_select(0, anchors) - 1)
+        low = torch.maximum(anchors - max_offset, torch.from_numpy(self._data["episode_start"][anchors.numpy()]))
+        high = torch.minimum(anchors + max_offset, torch.from_numpy(self._data["episode_end"][anchors.numpy()] - 1))
         u = torch.rand(anchors.shape, generator=self.generator, dtype=torch.float64)
         anchors2 = low + torch.clamp((u * (high - low + 1)).long(), max=high - low)
         return anchors2, anchors2 - anchors
