@@ -1,0 +1,192 @@
+"""Both training stages through the real `lerobot-train` CLI, then `lerobot-eval` on a toy env of this module."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import ClassVar
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+from policy_fixtures import PRIOR_REPO, TARGET_REPO, TINY_CLI
+from safetensors.torch import load_file
+from synthetic import make_synthetic_dataset
+
+from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
+from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
+from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
+from lerobot_skillret.retrieval.schema import RetrievalResult
+
+BIN = Path(sys.executable).parent
+# One intra-op thread: on a shared 2-core machine oversubscribed torch threads make tiny steps 20x slower.
+ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
+STATE_DIM, ENV_DIM, ACTION_DIM = 6, 5, 7
+
+
+class ToyReachEnv(gym.Env):
+    """Smooth random low-dim observations shaped like the synthetic datasets; success = action[0] > 0.5."""
+
+    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 20}
+
+    def __init__(self, episode_length: int = 12) -> None:
+        self.observation_space = gym.spaces.Dict(
+            {
+                "agent_pos": gym.spaces.Box(-10, 10, (STATE_DIM,), np.float32),
+                "environment_state": gym.spaces.Box(-10, 10, (ENV_DIM,), np.float32),
+            }
+        )
+        self.action_space = gym.spaces.Box(-1, 1, (ACTION_DIM,), np.float32)
+        self._max_episode_steps = episode_length
+        self.task, self.task_description = "reach", "reach"
+        self._t = 0
+
+    def _observation(self) -> dict:
+        t = self._t / 10.0
+        return {
+            "agent_pos": np.sin(t + np.arange(STATE_DIM)).astype(np.float32),
+            "environment_state": np.cos(t + np.arange(ENV_DIM)).astype(np.float32),
+        }
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self._t = 0
+        return self._observation(), {"is_success": False}
+
+    def step(self, action):
+        self._t += 1
+        success = bool(np.asarray(action)[0] > 0.5)
+        truncated = self._t >= self._max_episode_steps
+        return self._observation(), float(success), success, truncated, {"is_success": success}
+
+    def render(self):
+        return np.zeros((16, 16, 3), dtype=np.uint8)
+
+
+@EnvConfig.register_subclass("skillret_toy")
+@dataclass
+class ToyEnvConfig(EnvConfig):
+    task: str | None = "Reach-v0"
+    fps: int = 20
+    features: dict[str, PolicyFeature] = field(
+        default_factory=lambda: {
+            "action": PolicyFeature(type=FeatureType.ACTION, shape=(ACTION_DIM,)),
+            "agent_pos": PolicyFeature(type=FeatureType.STATE, shape=(STATE_DIM,)),
+            "environment_state": PolicyFeature(type=FeatureType.ENV, shape=(ENV_DIM,)),
+        }
+    )
+    features_map: dict[str, str] = field(
+        default_factory=lambda: {
+            "action": "action",
+            "agent_pos": "observation.state",
+            "environment_state": "observation.environment_state",
+        }
+    )
+
+    @property
+    def gym_kwargs(self) -> dict:
+        return {}
+
+
+if "gym_skillret_toy/Reach-v0" not in gym.registry:
+    gym.register("gym_skillret_toy/Reach-v0", entry_point=ToyReachEnv, order_enforce=False)
+
+
+def lerobot_train(*args: str) -> None:
+    result = subprocess.run(
+        [
+            str(BIN / "lerobot-train"),
+            "--policy.push_to_hub=false",
+            "--policy.device=cpu",
+            "--num_workers=0",
+            "--steps=3",
+            "--batch_size=4",
+            "--save_freq=3",
+            *args,
+        ],
+        env=ENV,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-5000:]
+
+
+@pytest.mark.slow
+def test_two_stages_with_lerobot_train_then_lerobot_eval(tmp_path, monkeypatch):
+    prior = make_synthetic_dataset(tmp_path / "prior", PRIOR_REPO, num_episodes=5, seed=0)
+    target = make_synthetic_dataset(tmp_path / "target", TARGET_REPO, num_episodes=3, seed=1)
+
+    # Stage 1 (Algorithm 1) on the prior dataset.
+    lerobot_train(
+        "--policy.type=skillret",
+        "--policy.stage=skills",
+        f"--dataset.repo_id={PRIOR_REPO}",
+        f"--dataset.root={prior}",
+        f"--output_dir={tmp_path / 'stage1'}",
+        *TINY_CLI,
+    )
+    stage1 = tmp_path / "stage1" / "checkpoints" / "last" / "pretrained_model"
+    assert (stage1 / "model.safetensors").is_file()
+
+    # A retrieval file on that checkpoint (what skillret-retrieve writes), a few prior windows.
+    skills = SkillRetPolicy.from_pretrained(stage1)
+    indices = torch.tensor([2, 11, 40, 63])
+    sampler = WindowSampler(EpisodeColumns.from_dataset(PRIOR_REPO, prior), history=3, horizon=4)
+    latent, _ = skills.encode_skill(sampler.gather(indices))
+    retrieval = RetrievalResult(
+        prior_index=indices,
+        distance=torch.zeros(4),
+        latent=latent,
+        checkpoint_fingerprint=checkpoint_fingerprint(stage1),
+        prior_fingerprint=dataset_fingerprint(prior),
+        target_fingerprint=dataset_fingerprint(target),
+    ).save(tmp_path / "retrieval.safetensors")
+
+    # Stage 2 (Algorithm 2) on the target dataset, from the stage-1 checkpoint.
+    lerobot_train(
+        f"--policy.path={stage1}",
+        "--policy.stage=policy",
+        f"--dataset.repo_id={TARGET_REPO}",
+        f"--dataset.root={target}",
+        f"--output_dir={tmp_path / 'stage2'}",
+        f"--policy.prior_repo_id={PRIOR_REPO}",
+        f"--policy.prior_root={prior}",
+        f"--policy.retrieval_path={retrieval}",
+    )
+    stage2 = tmp_path / "stage2" / "checkpoints" / "last" / "pretrained_model"
+    saved = json.loads((stage2 / "config.json").read_text())
+    assert saved["stage"] == "policy" and saved["skills_checkpoint_fingerprint"] == checkpoint_fingerprint(stage1)
+    # the normalisation the skill model was trained with survives --policy.path on another dataset
+    before, after = load_file(str(stage1 / "model.safetensors")), load_file(str(stage2 / "model.safetensors"))
+    for name in [n for n in before if n.startswith("normalizer.")]:
+        assert torch.equal(before[name], after[name]), name
+    assert not torch.equal(before["latent_policy.head.0.weight"], after["latent_policy.head.0.weight"])
+
+    # lerobot-eval on the toy env, in this process (the env type is registered by this module).
+    from lerobot.scripts import lerobot_eval
+
+    monkeypatch.setattr(
+        sys,
+        "argv",
+        [
+            "lerobot-eval",
+            f"--policy.path={stage2}",
+            "--env.type=skillret_toy",
+            "--eval.n_episodes=2",
+            "--eval.batch_size=2",
+            "--eval.use_async_envs=false",
+            "--policy.device=cpu",
+            f"--output_dir={tmp_path / 'eval'}",
+        ],
+    )
+    lerobot_eval.main()
+    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 2 and 0.0 <= info["overall"]["pc_success"] <= 100.0
