@@ -101,15 +101,19 @@ class NearestTarget:
 
     # --- features ---------------------------------------------------------------------------------------------
 
-    def _prior_features(self, mean: Tensor, log_var: Tensor | None, center: Tensor) -> tuple[Tensor, Tensor]:
-        """(F [n, E], a [n]) in float64 for a chunk of prior rows."""
-        m = mean.to(torch.float64) - center
+    def _prior_features(self, mean: Tensor, log_var: Tensor | None, center: Tensor, out: Tensor) -> Tensor:
+        """Write the features F of a chunk of prior rows into `out` [n, E] (its dtype); return a [n] (float64)."""
+        dim, dtype = self.latent_dim, out.dtype
+        centered = out[:, :dim] if self.metric == "l2" else out[:, 3 * dim :]
+        torch.sub(mean.to(dtype), center.to(dtype), out=centered)
+        square = centered * centered
         if self.metric == "l2":
-            return m, (m * m).sum(1)
-        inv = torch.exp(-log_var.to(torch.float64))
-        var = torch.exp(log_var.to(torch.float64))
-        features = torch.cat([var + m * m, inv, m * inv, m], dim=1)
-        return features, 0.25 * (m * m * inv).sum(1)
+            return square.sum(1).to(torch.float64)
+        log_var = log_var.to(dtype)
+        inv = torch.exp(torch.neg(log_var), out=out[:, dim : 2 * dim])
+        torch.add(torch.exp(log_var), square, out=out[:, :dim])
+        torch.mul(centered, inv, out=out[:, 2 * dim : 3 * dim])
+        return 0.25 * (square * inv).sum(1).to(torch.float64)
 
     def _target_features(self, center: Tensor) -> tuple[Tensor, Tensor]:
         """(G [M, E], b [M]) in float64; the KL scale 0.25 and its constant -D/2 are folded in here."""
@@ -159,19 +163,19 @@ class NearestTarget:
         starts = range(0, num_prior, chunk_size)
         for start in tqdm(starts, desc=f"scoring prior windows ({self.metric})", disable=not progress, unit="chunk"):
             stop = min(start + chunk_size, num_prior)
+            rows = prior_aug[: stop - start]
             log_var = None if prior_log_var is None else prior_log_var[start:stop]
-            features, const = self._prior_features(prior_mean[start:stop], log_var, center)
+            const = self._prior_features(prior_mean[start:stop], log_var, center, rows[:, :width])
             block = buffer[: stop - start]
-            prior_aug[: stop - start, :width].copy_(features)
-            torch.mm(prior_aug[: stop - start], target_aug, out=block)
+            torch.mm(rows, target_aug, out=block)
             if exclude is not None:
-                rows = torch.nonzero(exclude[start:stop] >= 0).squeeze(1)
-                block[rows, exclude[start:stop][rows]] = float("inf")
+                hit = torch.nonzero(exclude[start:stop] >= 0).squeeze(1)
+                block[hit, exclude[start:stop][hit]] = float("inf")
             kth, nearest[start:stop] = self._kth_nearest(block)
             total = kth.to(torch.float64) + const
             value[start:stop] = total
-            bound = features.norm(dim=1) * target_norm_max + target_const_max + const.abs() + total.abs()
-            margin[start:stop] = gamma * bound
+            norm = const.sqrt() if self.metric == "l2" else rows[:, :width].norm(dim=1).to(torch.float64)
+            margin[start:stop] = gamma * (norm * target_norm_max + target_const_max + const.abs() + total.abs())
         return Scores(value=value, nearest=nearest, margin=margin)
 
     def exact(

@@ -1,0 +1,143 @@
+"""Time and peak extra memory of retrieval (Algorithm 2, lines 4-6) on random latents, printed as one table.
+
+    .venv/bin/python benchmarks/retrieval_speed.py                  # everything (~2-3 minutes on 2 cores)
+    .venv/bin/python benchmarks/retrieval_speed.py --skip-public    # without the 5 GB dense float64 baseline
+
+Each method runs in a fresh subprocess, so its peak resident memory is its own: "extra MiB" is the growth of the
+process's peak RSS (`ru_maxrss`, which also sees torch's allocations, unlike tracemalloc) from just after the
+latents were created to the end of the method. Rows:
+
+- skillret l2 / kl: `select_windows` (chunked float32 GEMM + row minimum, float64 settling of rows near the cut,
+  top-r selection); N prior x M target latents of dimension D.
+- public (dense float64 cdist): the public implementation's approach, the full N x M float64 matrix from
+  `scipy.spatial.distance.cdist`, then the row minimum and an argsort. It is also the float64 reference: the
+  "same set" column says whether skillret selected exactly its windows.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+SEED = 0
+
+
+def _peak_rss_mib() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux reports KiB
+
+
+def _latents(num_prior: int, num_target: int, dim: int):
+    import torch
+
+    generator = torch.Generator().manual_seed(SEED)
+    prior = torch.randn(num_prior, dim, generator=generator)
+    target = torch.randn(num_target, dim, generator=generator) * 0.8 + 0.3
+    prior_log_var = target_log_var = None
+    return prior, target, prior_log_var, target_log_var, generator
+
+
+def run_method(method: str, num_prior: int, num_target: int, dim: int, fraction: float, out: Path) -> dict:
+    """Runs inside the child process: build the inputs, then time one method and measure its memory growth."""
+    import numpy as np
+    import torch
+
+    prior, target, prior_log_var, target_log_var, generator = _latents(num_prior, num_target, dim)
+    if method == "skillret-kl":
+        prior_log_var = -1.0 + 0.3 * torch.randn(num_prior, dim, generator=generator)
+        target_log_var = -1.0 + 0.3 * torch.randn(num_target, dim, generator=generator)
+    baseline = _peak_rss_mib()
+    start = time.perf_counter()
+    if method.startswith("skillret"):
+        from lerobot_skillret.retrieval.engine import select_windows
+        from lerobot_skillret.retrieval.settings import RetrievalSettings
+
+        metric = "kl" if method == "skillret-kl" else "l2"
+        settings = RetrievalSettings(fraction=fraction, metric=metric, num_prior=num_prior).resolve()
+        selection = select_windows(prior, target, settings, prior_log_var=prior_log_var, target_log_var=target_log_var)
+        retrieved = selection.retrieved.numpy()
+    elif method == "public":
+        from scipy.spatial.distance import cdist
+
+        distances = cdist(prior.numpy().astype(np.float64), target.numpy().astype(np.float64))  # [N, M] float64
+        nearest = distances.min(axis=1)
+        retrieved = np.argsort(nearest, kind="stable")[: round(fraction * num_prior)]
+    else:
+        raise ValueError(f"unknown method {method}")
+    seconds = time.perf_counter() - start
+    np.save(out, np.sort(retrieved))
+    return {"seconds": seconds, "extra_mib": _peak_rss_mib() - baseline, "threads": torch.get_num_threads()}
+
+
+def spawn(method: str, num_prior: int, num_target: int, dim: int, fraction: float, workdir: Path) -> dict:
+    out = workdir / f"{method}_{num_prior}.npy"
+    command = [sys.executable, __file__, "--child", method, str(num_prior), str(num_target), str(dim), str(fraction)]
+    done = subprocess.run([*command, str(out)], capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"{method} at N={num_prior} failed:\n{done.stderr[-3000:]}")
+    result = json.loads(done.stdout.strip().splitlines()[-1])
+    result["selection"] = out
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--num-target", type=int, default=2_500, help="M target latents (paper: 2,500)")
+    parser.add_argument("--dim", type=int, default=64, help="latent dimension D (paper: 64)")
+    parser.add_argument("--fraction", type=float, default=0.10, help="r, share retrieved (paper: 10%%)")
+    parser.add_argument(
+        "--sizes",
+        type=int,
+        nargs="+",
+        default=[250_000, 2_300_000],
+        help="prior sizes N (paper: 250k candidates; CALVIN's whole prior: 2.3M)",
+    )
+    parser.add_argument("--skip-public", action="store_true", help="skip the dense float64 cdist baseline")
+    parser.add_argument("--child", nargs=6, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        method, num_prior, num_target, dim, fraction, out = args.child
+        print(json.dumps(run_method(method, int(num_prior), int(num_target), int(dim), float(fraction), Path(out))))
+        return
+
+    import numpy as np
+
+    plan = [("skillret-l2", n) for n in args.sizes] + [("skillret-kl", min(args.sizes))]
+    if not args.skip_public:
+        plan.append(("public", min(args.sizes)))
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for method, num_prior in plan:
+            print(f"running {method} N={num_prior:,} ...", flush=True)
+            rows.append(
+                (method, num_prior, spawn(method, num_prior, args.num_target, args.dim, args.fraction, Path(tmp)))
+            )
+        reference = {n: np.load(r["selection"]) for m, n, r in rows if m == "public"}
+        print(
+            f"\nM={args.num_target:,} target latents, D={args.dim}, r={args.fraction:.0%}, fp32 inputs, "
+            f"{rows[0][2]['threads']} torch threads"
+        )
+        print(f"{'method':<30} {'N':>10} {'time s':>8} {'extra MiB':>10} {'same set as float64':>20}")
+        for method, num_prior, result in rows:
+            name = {
+                "skillret-l2": "skillret L2 (chunked GEMM)",
+                "skillret-kl": "skillret symmetric KL",
+                "public": "public: dense float64 cdist",
+            }[method]
+            same = "-"
+            if num_prior in reference and method != "public":
+                same = "yes" if np.array_equal(np.load(result["selection"]), reference[num_prior]) else "NO"
+            elif method == "public":
+                same = "(reference)"
+            if method == "skillret-kl":
+                same = "n/a (other metric)"
+            print(f"{name:<30} {num_prior:>10,} {result['seconds']:>8.2f} {result['extra_mib']:>10.0f} {same:>20}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,271 @@
+"""`retrieve`: stage-1 checkpoint + prior and target datasets -> retrieval file (Algorithm 2, lines 1-7).
+
+1. Load the skill model (`SkillRetPolicy.from_pretrained`; it carries the stage-1 normalisation statistics).
+2. Draw N candidate anchors in the prior (uniform over frames, without replacement; every frame when N is "all"
+   or exceeds the prior) and M anchors in the target, and encode their H-step windows with the encoder MEAN
+   (`WindowSampler.gather` + `SkillRetPolicy.encode_skill`, batched, no autograd).
+3. `select_windows` scores every candidate by its distance to the nearest target latent and keeps the r closest.
+4. Write a `RetrievalResult` with the fingerprints of the checkpoint and both datasets, and optionally a report.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+from tqdm.auto import tqdm
+
+from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
+from lerobot_skillret.retrieval.engine import (
+    STREAM_CANDIDATES,
+    STREAM_TARGETS,
+    Selection,
+    generator,
+    select_windows,
+)
+from lerobot_skillret.retrieval.report import label_names, relevant_labels, write_report
+from lerobot_skillret.retrieval.schema import RetrievalResult
+from lerobot_skillret.retrieval.settings import EVERY_WINDOW, RetrievalSettings
+
+log = logging.getLogger(__name__)
+PRIMITIVE_KEY = "primitive_index"
+
+
+@dataclass
+class Encoded:
+    """Encoder outputs of the windows at `anchors` (global frame indices)."""
+
+    anchors: Tensor  # [n] int64
+    mean: Tensor  # [n, D] float32
+    log_var: Tensor | None  # [n, D] float32, kept only for the KL metric
+
+
+def resolve_checkpoint(path: str | Path) -> Path:
+    """The `pretrained_model` folder of a stage-1 checkpoint (a run's checkpoint folder is accepted too)."""
+    path = Path(path)
+    if (path / "pretrained_model").is_dir():
+        path = path / "pretrained_model"
+    if not path.is_dir():
+        raise FileNotFoundError(
+            f"Stage-1 checkpoint {path} does not exist. Pass the `pretrained_model` folder of a skills run, e.g. "
+            "outputs/train/<run>/checkpoints/last/pretrained_model (lerobot-train --policy.type=skillret "
+            "--policy.stage=skills)."
+        )
+    checkpoint_fingerprint(path)  # raises a clear error when config.json or model.safetensors is missing
+    kind = json.loads((path / "config.json").read_text()).get("type")
+    if kind != "skillret":
+        raise ValueError(
+            f"{path} is a `{kind}` checkpoint, not a skillret one: retrieval needs the skill encoder of a "
+            "`--policy.type=skillret` stage-1 run."
+        )
+    return path
+
+
+def load_skill_model(path: str | Path, device: str | None = None):
+    """The stage-1 policy in eval mode on `device` (default: the checkpoint's own, if available)."""
+    from lerobot.configs.policies import PreTrainedConfig
+
+    from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
+
+    path = resolve_checkpoint(path)
+    config = PreTrainedConfig.from_pretrained(path)
+    if device is not None:
+        config.device = device
+    policy = SkillRetPolicy.from_pretrained(path, config=config)
+    if policy.image_keys:
+        raise ValueError(
+            f"The checkpoint encodes camera observations {policy.image_keys}; retrieval reads windows from the "
+            "datasets' low-dim columns only. Train the skill model on low-dim observations for retrieval."
+        )
+    return policy.eval()
+
+
+def choose_anchors(num_frames: int, count: int | str, rng: torch.Generator) -> Tensor:
+    """`count` distinct frames drawn uniformly (sorted, for memory locality), or every frame."""
+    if num_frames == 0:
+        raise ValueError("The dataset has no frames to draw windows from.")
+    if count == EVERY_WINDOW or count >= num_frames:
+        return torch.arange(num_frames)
+    return torch.randperm(num_frames, generator=rng)[:count].sort().values
+
+
+def encode_windows(
+    policy, columns, anchors: Tensor, *, batch_size: int, keep_log_var: bool, progress: bool, name: str
+) -> Encoded:
+    """Encoder (mean, log_var) of the H-step windows at `anchors`, in batches, without autograd."""
+    from lerobot_skillret.data.windows import WindowSampler
+
+    keys = [*policy.low_dim_keys, "action"]
+    missing = [key for key in keys if key not in columns.features]
+    if missing:
+        raise KeyError(
+            f"The {name} dataset {columns.repo_id} lacks {missing}, which the skill model was trained on; "
+            f"it has {sorted(columns.features)}. Use datasets with the stage-1 observation layout."
+        )
+    # history=1: the encoder reads only the H steps from the anchor, so the F-1 earlier frames are not gathered.
+    sampler = WindowSampler(columns, history=1, horizon=policy.config.horizon, keys=keys)
+    dim = policy.config.latent_dim
+    mean = torch.empty(len(anchors), dim)
+    log_var = torch.empty(len(anchors), dim) if keep_log_var else None
+    starts = range(0, len(anchors), batch_size)
+    with torch.inference_mode():
+        for start in tqdm(starts, desc=f"encoding {name} windows", disable=not progress, unit="batch"):
+            window = sampler.gather(anchors[start : start + batch_size])
+            batch_mean, batch_log_var = policy.encode_skill(dict(window.items()))
+            mean[start : start + batch_size] = batch_mean.float().cpu()
+            if log_var is not None:
+                log_var[start : start + batch_size] = batch_log_var.float().cpu()
+    return Encoded(anchors=anchors, mean=mean, log_var=log_var)
+
+
+def retrieve(
+    checkpoint: str | Path,
+    prior_repo_id: str,
+    prior_root: str | Path,
+    target_repo_id: str,
+    target_root: str | Path,
+    output: str | Path | None = None,
+    settings: RetrievalSettings | None = None,
+    *,
+    report_dir: str | Path | None = None,
+    relevant_primitives: list[str] | None = None,
+    device: str | None = None,
+    progress: bool = True,
+) -> RetrievalResult:
+    """Retrieve prior windows for the target task and (with `output`) write the retrieval file atomically.
+
+    Unset `settings` values come from the checkpoint's config; the resolved ones are stored in the file.
+    `report_dir` also writes the JSON summary and plots (`report.write_report`).
+    """
+    from lerobot_skillret.data.windows import EpisodeColumns
+
+    pretrained = resolve_checkpoint(checkpoint)
+    fingerprints = {
+        "checkpoint_fingerprint": checkpoint_fingerprint(pretrained),
+        "prior_fingerprint": dataset_fingerprint(prior_root),
+        "target_fingerprint": dataset_fingerprint(target_root),
+    }
+    policy = load_skill_model(pretrained, device)
+    settings = (settings or RetrievalSettings()).resolve(policy.config)
+    info: dict[str, Any] = {
+        **settings.to_dict(),
+        "checkpoint": str(pretrained),
+        "prior_repo_id": prior_repo_id,
+        "target_repo_id": target_repo_id,
+        "horizon": policy.config.horizon,
+        "latent_dim": policy.config.latent_dim,
+    }
+    if settings.mode == "none":  # the "no retrieval" ablation: nothing to encode
+        dim = policy.config.latent_dim
+        result = RetrievalResult(
+            torch.empty(0, dtype=torch.int64), torch.empty(0), torch.empty(0, dim), info, **fingerprints
+        )
+        return _finish(result, output, report_dir, None)
+
+    prior_columns = EpisodeColumns.from_dataset(prior_repo_id, prior_root)
+    target_columns = EpisodeColumns.from_dataset(target_repo_id, target_root)
+    candidates = choose_anchors(len(prior_columns), settings.num_prior, generator(settings.seed, STREAM_CANDIDATES))
+    targets = choose_anchors(len(target_columns), settings.num_target, generator(settings.seed, STREAM_TARGETS))
+    labels, target_labels = _labels(prior_columns, candidates), _labels(target_columns, targets)
+    names = label_names(primitive_names(prior_root), labels, target_labels)
+    if relevant_primitives:
+        relevant_labels(relevant_primitives, names)  # fail before the expensive part, not after it
+    common = {"batch_size": settings.batch_size, "keep_log_var": settings.metric == "kl", "progress": progress}
+    prior = encode_windows(policy, prior_columns, candidates, name="prior", **common)
+    target = encode_windows(policy, target_columns, targets, name="target", **common)
+    td = prior_columns.td
+    selection = select_windows(
+        prior.mean,
+        target.mean,
+        settings,
+        prior_log_var=prior.log_var,
+        target_log_var=target.log_var,
+        anchors=candidates,
+        episode_start=td["episode_start"].as_subclass(Tensor)[candidates],
+        episode_end=td["episode_end"].as_subclass(Tensor)[candidates],
+        progress=progress,
+    )
+    picked = selection.retrieved
+    info.update(
+        num_prior_frames=len(prior_columns),
+        num_target_frames=len(target_columns),
+        num_candidates=len(candidates),
+        num_target_windows=len(targets),
+        num_retrieved=len(picked),
+        cut=selection.cut,
+    )
+    result = RetrievalResult(
+        prior_index=td["index"].as_subclass(Tensor)[candidates[picked]].to(torch.int64),
+        distance=selection.distance[picked].float(),
+        latent=prior.mean[picked],
+        settings=info,
+        **fingerprints,
+    )
+    context = ReportInputs(
+        selection=selection,
+        prior_mean=prior.mean,
+        target_mean=target.mean,
+        anchors=candidates,
+        episode_start=td["episode_start"].as_subclass(Tensor)[candidates],
+        primitive=labels,
+        target_primitive=target_labels,
+        primitive_names=names,
+        relevant_primitives=relevant_primitives,
+    )
+    return _finish(result, output, report_dir, context)
+
+
+@dataclass
+class ReportInputs:
+    """What the report needs beyond the retrieval file: every candidate's score, latent and labels."""
+
+    selection: Selection
+    prior_mean: Tensor  # [N, D] candidates' latents
+    target_mean: Tensor  # [M, D]
+    anchors: Tensor  # [N] global frame index of each candidate's anchor
+    episode_start: Tensor | None = None  # [N] first frame of each candidate's episode
+    primitive: Tensor | None = None  # [N] primitive label at each candidate's anchor frame
+    target_primitive: Tensor | None = None  # [M] primitive label at each target window's anchor frame
+    primitive_names: list[str] | None = None
+    relevant_primitives: list[str] | None = None
+
+
+def _labels(columns, anchors: Tensor) -> Tensor | None:
+    if PRIMITIVE_KEY not in columns.features:
+        return None
+    return columns.td[PRIMITIVE_KEY].as_subclass(Tensor)[anchors].to(torch.int64)
+
+
+def _finish(
+    result: RetrievalResult, output: str | Path | None, report_dir: str | Path | None, inputs: ReportInputs | None
+) -> RetrievalResult:
+    if output is not None:
+        result.save(output)
+        log.info("wrote %d retrieved windows to %s", len(result), output)
+    if report_dir is not None:
+        write_report(report_dir, result, inputs)
+    return result
+
+
+def primitive_names(root: str | Path) -> list[str] | None:
+    """Names of the `primitive_index` labels, if the dataset states them.
+
+    Looked up in `meta/info.json` under features.primitive_index.names (a list of names, one per label value)
+    or in `meta/primitives.json` (a JSON list). None when absent: reports then say "primitive <i>".
+    """
+    meta = Path(root) / "meta"
+    extra = meta / "primitives.json"
+    if extra.is_file():
+        names = json.loads(extra.read_text())
+        return [str(n) for n in names] if isinstance(names, list) else None
+    info = meta / "info.json"
+    if info.is_file():
+        names = json.loads(info.read_text()).get("features", {}).get(PRIMITIVE_KEY, {}).get("names")
+        if isinstance(names, list) and len(names) > 1 and all(isinstance(n, str) for n in names):
+            return names
+    return None

@@ -1,0 +1,176 @@
+"""`skillret-retrieve`: retrieve prior windows for a target task with a stage-1 skill checkpoint.
+
+Examples:
+  skillret-retrieve --checkpoint outputs/skills/checkpoints/last/pretrained_model \\
+      --prior-repo-id local/play --prior-root data/play \\
+      --target-repo-id local/cleaning_up --target-root data/cleaning_up \\
+      --output outputs/retrieval/cleaning_up.safetensors --report-dir outputs/retrieval/cleaning_up_report
+  skillret-retrieve ... --ablation random          # appendix A.4's "random retrieval"
+  skillret-retrieve ... --fraction 0.02            # "2% retrieval"
+  skillret-retrieve ... --num-prior all            # "large retrieval": every prior window is a candidate
+  skillret-retrieve ... --metric kl                # appendix A.2: symmetric KL between the encoder Gaussians
+
+Unset options take the checkpoint config's values (retrieval_fraction, retrieval_metric, retrieval_num_prior,
+retrieval_num_target), which default to the paper's r=10%, L2, N=250,000, M=2,500.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from lerobot_skillret.retrieval.settings import ABLATIONS, EVERY_WINDOW, MODES, RetrievalSettings
+
+
+def _num_prior(text: str) -> int | str:
+    if text == EVERY_WINDOW:
+        return EVERY_WINDOW
+    try:
+        return int(text.replace("_", ""))
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"expected a number of windows or '{EVERY_WINDOW}', got {text!r}") from error
+
+
+def _flag(text: str) -> bool:
+    if text.lower() in ("1", "true", "yes", "on"):
+        return True
+    if text.lower() in ("0", "false", "no", "off"):
+        return False
+    raise argparse.ArgumentTypeError(f"expected true/false, got {text!r}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="skillret-retrieve",
+        description="Encode prior and target windows with a stage-1 skillret checkpoint and keep the prior windows "
+        "whose skill latents lie closest to the target's (Algorithm 2, lines 1-7). Writes the retrieval file "
+        "that stage 2 reads with --policy.retrieval_path.",
+        epilog=__doc__.split("\n", 2)[2],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    io = parser.add_argument_group("inputs and outputs")
+    io.add_argument(
+        "--checkpoint",
+        required=True,
+        type=Path,
+        help="stage-1 checkpoint: the `pretrained_model` folder (or the checkpoint folder holding it)",
+    )
+    io.add_argument("--prior-root", required=True, type=Path, help="local folder of the prior (play) dataset")
+    io.add_argument("--prior-repo-id", help="repo id of the prior dataset (default: local/<folder name>)")
+    io.add_argument("--target-root", required=True, type=Path, help="local folder of the target demos dataset")
+    io.add_argument("--target-repo-id", help="repo id of the target dataset (default: local/<folder name>)")
+    io.add_argument("--output", required=True, type=Path, help="retrieval file to write (.safetensors, atomic)")
+    io.add_argument("--report-dir", type=Path, help="also write summary.json and PNG plots into this folder")
+    io.add_argument(
+        "--relevant-primitives",
+        help="comma-separated primitive names the target task uses: the report then states retrieval precision",
+    )
+
+    paper = parser.add_argument_group("retrieval (the paper's knobs; unset = the checkpoint config's value)")
+    paper.add_argument(
+        "--ablation",
+        choices=sorted(ABLATIONS),
+        default="ours",
+        help="a row of appendix A.4; the options below override it (default: ours)",
+    )
+    paper.add_argument("--mode", choices=MODES, help="nearest (the method), random, all or none")
+    paper.add_argument("--fraction", type=float, help="r: share of candidates retrieved, in [0, 1] (paper 0.1)")
+    paper.add_argument("--metric", choices=("l2", "kl"), help="l2 on encoder means, or symmetric KL (A.2)")
+    paper.add_argument(
+        "--num-prior",
+        type=_num_prior,
+        help=f"N candidate windows drawn from the prior, or '{EVERY_WINDOW}' (paper 250000)",
+    )
+    paper.add_argument("--num-target", type=int, help="M target windows encoded (paper 2500)")
+    paper.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
+
+    extra = parser.add_argument_group("options beyond the paper (off by default)")
+    extra.add_argument("--neighbors", type=int, help="score by the k-th nearest target latent (default 1)")
+    extra.add_argument(
+        "--nms-radius",
+        type=int,
+        help="keep no two retrieved anchors of one episode within this many steps (default 0: off)",
+    )
+    extra.add_argument(
+        "--target-quota", type=int, help="each target latent may be the nearest of at most this many retrieved windows"
+    )
+    extra.add_argument(
+        "--importance",
+        type=_flag,
+        nargs="?",
+        const=True,
+        help="rank by the k-NN target/prior density ratio instead of the raw distance",
+    )
+    extra.add_argument(
+        "--exact", type=_flag, nargs="?", const=True, help="settle windows near the cut in float64 (default true)"
+    )
+
+    run = parser.add_argument_group("execution")
+    run.add_argument("--batch-size", type=int, help="windows per encoder forward pass (default 512)")
+    run.add_argument("--chunk-size", type=int, help="prior rows per distance block (default 1024)")
+    run.add_argument("--device", help="torch device for the encoder (default: the checkpoint's, if available)")
+    run.add_argument("--quiet", action="store_true", help="no progress bars")
+    return parser
+
+
+def settings_from_args(args: argparse.Namespace) -> RetrievalSettings:
+    """The ablation's settings, overridden by every option given explicitly."""
+    values = dict(ABLATIONS[args.ablation])
+    for name in (
+        "mode",
+        "fraction",
+        "metric",
+        "num_prior",
+        "num_target",
+        "neighbors",
+        "nms_radius",
+        "target_quota",
+        "importance",
+        "exact",
+        "batch_size",
+        "chunk_size",
+    ):
+        if getattr(args, name) is not None:
+            values[name] = getattr(args, name)
+    return RetrievalSettings(seed=args.seed, **values)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    from lerobot_skillret.retrieval.api import retrieve
+
+    relevant = [name.strip() for name in args.relevant_primitives.split(",")] if args.relevant_primitives else None
+    try:
+        settings = settings_from_args(args)
+        result = retrieve(
+            args.checkpoint,
+            args.prior_repo_id or f"local/{args.prior_root.name}",
+            args.prior_root,
+            args.target_repo_id or f"local/{args.target_root.name}",
+            args.target_root,
+            args.output,
+            settings,
+            report_dir=args.report_dir,
+            relevant_primitives=relevant,
+            device=args.device,
+            progress=not args.quiet,
+        )
+    except (FileNotFoundError, ValueError, KeyError) as error:
+        message = error.args[0] if isinstance(error, KeyError) and error.args else error
+        parser.exit(2, f"skillret-retrieve: error: {message}\n")
+    used = result.settings
+    print(
+        f"retrieved {len(result):,} of {used.get('num_candidates', 0):,} prior windows "
+        f"(mode {used['mode']}, {used['metric']}, r={used['fraction']:g}, cut={used.get('cut', float('nan')):.4g}) "
+        f"-> {args.output}" + (f"; report in {args.report_dir}" if args.report_dir else ""),
+        file=sys.stderr,
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
