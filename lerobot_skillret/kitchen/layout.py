@@ -11,6 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+# Simulation settings shared by data generation and evaluation: 10 physics substeps per 20 Hz control step
+# (robosuite's default 0.002 s gives 25 substeps and ~1.6x slower steps with the same scripted success).
+SIMULATION_TIMESTEP = 0.005
+CONTROL_FREQ = 20
+
 TABLE_Z = 0.8
 TABLE_FULL_SIZE = (0.8, 1.4, 0.05)
 

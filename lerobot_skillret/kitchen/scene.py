@@ -21,10 +21,9 @@ from robosuite.utils.mjcf_utils import array_to_string
 
 from lerobot_skillret.kitchen import layout
 
-# One simulation timestep for generation and evaluation (10 substeps per control step at 20 Hz); set here only.
-SIMULATION_TIMESTEP = 0.005
-CONTROL_FREQ = 20
-macros.SIMULATION_TIMESTEP = SIMULATION_TIMESTEP
+# One simulation timestep for generation and evaluation (layout.SIMULATION_TIMESTEP), applied here only.
+CONTROL_FREQ = layout.CONTROL_FREQ
+macros.SIMULATION_TIMESTEP = layout.SIMULATION_TIMESTEP
 
 ASSETS = Path(__file__).parent / "assets"
 # (asset file, body name in the file, name prefix for templated assets, fixture key in layout.FIXTURES)

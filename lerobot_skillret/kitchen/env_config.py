@@ -1,0 +1,45 @@
+"""LeRobot EnvConfig `panda_kitchen`: lets `lerobot-eval --env.type=panda_kitchen --env.task=<task>` run.
+
+Features are derived from `observations` (the one observation layout). Import-light: no robosuite here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.envs.configs import EnvConfig
+
+from lerobot_skillret.kitchen import observations as O
+from lerobot_skillret.kitchen.layout import CONTROL_FREQ
+
+
+@EnvConfig.register_subclass("panda_kitchen")
+@dataclass
+class PandaKitchenEnv(EnvConfig):
+    task: str | None = "breakfast"
+    fps: int = CONTROL_FREQ
+    episode_length: int | None = None  # None: the task's own max_steps
+    cameras: tuple[str, ...] = ()
+    image_size: int = O.DEFAULT_IMAGE_SIZE
+    features: dict[str, PolicyFeature] = field(default_factory=dict)
+    features_map: dict[str, str] = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.cameras = O.check_cameras(self.cameras)
+        self.features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(len(O.ACTION_NAMES),))}
+        self.features_map = {"action": "action", **O.ENV_TO_DATASET}
+        types = {"agent_pos": FeatureType.STATE, "environment_state": FeatureType.ENV}
+        for key, shape in O.env_feature_shapes(self.cameras, self.image_size).items():
+            feature_type = FeatureType.VISUAL if key.startswith("pixels/") else types[key]
+            self.features[key] = PolicyFeature(type=feature_type, shape=shape)
+            if key.startswith("pixels/"):
+                self.features_map[key] = O.image_key(key.split("/", 1)[1])
+
+    @property
+    def gym_kwargs(self) -> dict:
+        return {
+            "cameras": tuple(self.cameras),
+            "image_size": self.image_size,
+            "max_episode_steps": self.episode_length,
+        }

@@ -1,0 +1,83 @@
+"""Gymnasium env for one kitchen task (`gym_panda_kitchen/<task>`), as LeRobot's eval expects it.
+
+Observations come from `observations.build_observation`; success from the task's predicates; the episode
+terminates on success and is truncated at the task's `max_steps`.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from lerobot_skillret.kitchen import observations as O
+from lerobot_skillret.kitchen.expert import reset_scene
+from lerobot_skillret.kitchen.rendering import CameraRenderer
+from lerobot_skillret.kitchen.scene import CONTROL_FREQ, KitchenScene
+from lerobot_skillret.kitchen.tasks import get_task
+
+RENDER_SIZE = 256
+
+
+class KitchenEnv(gym.Env):
+    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": CONTROL_FREQ}
+
+    def __init__(
+        self,
+        task: str = "breakfast",
+        cameras: tuple[str, ...] | list[str] = (),
+        image_size: int = O.DEFAULT_IMAGE_SIZE,
+        max_episode_steps: int | None = None,
+        render_mode: str = "rgb_array",
+    ):
+        self._task = get_task(task)
+        self.task = task
+        self.task_description = self._task.description
+        self.cameras = O.check_cameras(cameras)
+        self.image_size = image_size
+        self.render_mode = render_mode
+        self._max_episode_steps = int(max_episode_steps or self._task.max_steps)
+        self.scene = KitchenScene()
+        self._cam = CameraRenderer(self.scene, image_size) if self.cameras else None
+        self._viewer: CameraRenderer | None = None
+        obs_spaces = {
+            "agent_pos": spaces.Box(-np.inf, np.inf, (len(O.STATE_NAMES),), np.float32),
+            "environment_state": spaces.Box(-np.inf, np.inf, (len(O.ENV_STATE_NAMES),), np.float32),
+        }
+        if self.cameras:
+            obs_spaces["pixels"] = spaces.Dict(
+                {c: spaces.Box(0, 255, (image_size, image_size, 3), np.uint8) for c in self.cameras}
+            )
+        self.observation_space = spaces.Dict(obs_spaces)
+        self.action_space = spaces.Box(-1.0, 1.0, (len(O.ACTION_NAMES),), np.float32)
+        self._steps = 0
+
+    def _obs(self) -> dict:
+        return O.build_observation(self.scene, self._cam, self.cameras)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        reset_scene(self.scene, self._task, self.np_random)
+        self._steps = 0
+        return self._obs(), {"is_success": False}
+
+    def step(self, action):
+        action = np.clip(np.asarray(action, dtype=np.float64).reshape(-1), -1.0, 1.0)
+        self.scene.step(action)
+        self._steps += 1
+        success = bool(self._task.success(self.scene))
+        truncated = self._steps >= self._max_episode_steps and not success
+        return self._obs(), float(success), success, truncated, {"is_success": success}
+
+    def render(self):
+        if self._viewer is None:
+            self._viewer = CameraRenderer(self.scene, RENDER_SIZE)
+        return self._viewer.render("agentview")
+
+    def close(self):
+        for r in (self._cam, self._viewer):
+            if r is not None:
+                r.close()
+        self._cam = self._viewer = None

@@ -1,0 +1,110 @@
+"""The observation layout: ONE definition used by the data generators, the gym env and the EnvConfig.
+
+- `agent_pos` / `observation.state` (9): eef position (3), eef orientation quaternion (w, x, y, z) with w >= 0
+  (4), the two finger joint positions (2).
+- `environment_state` / `observation.environment_state` (80): for every movable (layout.MOVABLES order) its
+  position (3) and quaternion (w, x, y, z) (4), then the drawer slide, light switch and burner switch joints.
+- `pixels/<camera>` / `observation.images.<camera>` (H, W, 3) uint8, optional: "agentview", "eye_in_hand".
+Import-light (numpy + layout only) so the EnvConfig can derive its features here without robosuite.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lerobot_skillret.kitchen import layout
+
+CAMERAS = ("agentview", "eye_in_hand")
+DEFAULT_IMAGE_SIZE = 84
+FIXTURE_JOINTS = ("drawer_slide", "light_switch_joint", "burner_switch_joint")
+STATE_NAMES = ["eef_x", "eef_y", "eef_z", "eef_qw", "eef_qx", "eef_qy", "eef_qz", "finger_left", "finger_right"]
+ENV_STATE_NAMES = [f"{obj}_{c}" for obj in layout.MOVABLES for c in ("x", "y", "z", "qw", "qx", "qy", "qz")] + list(
+    FIXTURE_JOINTS
+)
+ACTION_NAMES = ["dx", "dy", "dz", "dax", "day", "daz", "gripper"]
+# env observation key -> LeRobot dataset / policy feature key
+ENV_TO_DATASET = {"agent_pos": "observation.state", "environment_state": "observation.environment_state"}
+PRIMITIVE_KEY = "primitive_index"
+
+
+def image_key(camera: str) -> str:
+    return f"observation.images.{camera}"
+
+
+def check_cameras(cameras) -> tuple[str, ...]:
+    cameras = tuple(cameras)
+    unknown = [c for c in cameras if c not in CAMERAS]
+    if unknown:
+        raise ValueError(f"unknown camera(s) {unknown}; choose from {CAMERAS}")
+    return cameras
+
+
+def _quat_wxyz_from_mat(m: np.ndarray) -> np.ndarray:
+    w = np.sqrt(max(0.0, 1.0 + m[0, 0] + m[1, 1] + m[2, 2])) / 2
+    x = np.sqrt(max(0.0, 1.0 + m[0, 0] - m[1, 1] - m[2, 2])) / 2
+    y = np.sqrt(max(0.0, 1.0 - m[0, 0] + m[1, 1] - m[2, 2])) / 2
+    z = np.sqrt(max(0.0, 1.0 - m[0, 0] - m[1, 1] + m[2, 2])) / 2
+    x = np.copysign(x, m[2, 1] - m[1, 2])
+    y = np.copysign(y, m[0, 2] - m[2, 0])
+    z = np.copysign(z, m[1, 0] - m[0, 1])
+    return np.array([w, x, y, z])
+
+
+def agent_pos(scene) -> np.ndarray:
+    return np.concatenate([scene.eef_pos(), _quat_wxyz_from_mat(scene.eef_mat()), scene.gripper_qpos()]).astype(
+        np.float32
+    )
+
+
+def environment_state(scene) -> np.ndarray:
+    parts = []
+    for name in layout.MOVABLES:
+        q = scene.body_quat(name)
+        parts += [scene.body_pos(name), q if q[0] >= 0 else -q]
+    parts.append(np.array([scene.joint(j) for j in FIXTURE_JOINTS]))
+    return np.concatenate(parts).astype(np.float32)
+
+
+def build_observation(scene, renderer=None, cameras: tuple[str, ...] = ()) -> dict:
+    """The env-side observation dict (`agent_pos`, `environment_state`, optional `pixels`)."""
+    obs = {"agent_pos": agent_pos(scene), "environment_state": environment_state(scene)}
+    if cameras:
+        obs["pixels"] = {cam: renderer.render(cam) for cam in cameras}
+    return obs
+
+
+def to_dataset_frame(obs: dict) -> dict:
+    """Rename an env observation to LeRobot dataset keys."""
+    frame = {ENV_TO_DATASET[k]: v for k, v in obs.items() if k in ENV_TO_DATASET}
+    for cam, img in obs.get("pixels", {}).items():
+        frame[image_key(cam)] = img
+    return frame
+
+
+def dataset_features(cameras: tuple[str, ...] = (), image_size: int = DEFAULT_IMAGE_SIZE) -> dict:
+    """Feature spec for `LeRobotDataset.create` (plus the primitive label column)."""
+    features = {
+        "observation.state": {"dtype": "float32", "shape": (len(STATE_NAMES),), "names": STATE_NAMES},
+        "observation.environment_state": {
+            "dtype": "float32",
+            "shape": (len(ENV_STATE_NAMES),),
+            "names": ENV_STATE_NAMES,
+        },
+        "action": {"dtype": "float32", "shape": (len(ACTION_NAMES),), "names": ACTION_NAMES},
+        PRIMITIVE_KEY: {"dtype": "int64", "shape": (1,), "names": None},
+    }
+    for cam in check_cameras(cameras):
+        features[image_key(cam)] = {
+            "dtype": "video",
+            "shape": (image_size, image_size, 3),
+            "names": ["height", "width", "channels"],
+        }
+    return features
+
+
+def env_feature_shapes(cameras: tuple[str, ...] = (), image_size: int = DEFAULT_IMAGE_SIZE) -> dict:
+    """Env-side keys -> shapes (`pixels/<cam>` for cameras), as the gym env and the EnvConfig declare them."""
+    shapes = {"agent_pos": (len(STATE_NAMES),), "environment_state": (len(ENV_STATE_NAMES),)}
+    for cam in check_cameras(cameras):
+        shapes[f"pixels/{cam}"] = (image_size, image_size, 3)
+    return shapes
