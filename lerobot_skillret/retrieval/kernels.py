@@ -29,6 +29,7 @@ from tqdm.auto import tqdm
 
 METRICS = ("l2", "kl")
 _UNIT_ROUNDOFF = {torch.float32: 2.0**-24, torch.float64: 2.0**-53}
+_EXACT_SLICE = 1 << 16  # prior rows gathered at once by `exact`
 
 
 @dataclass
@@ -181,10 +182,18 @@ class NearestTarget:
     def exact(
         self, prior_mean: Tensor, prior_log_var: Tensor | None, rows: Tensor, exclude: Tensor | None = None
     ) -> Tensor:
-        """float64 values of the given prior rows: settles the rows whose side of the selection cut is uncertain."""
-        log_var = None if prior_log_var is None else prior_log_var[rows]
-        sub_exclude = None if exclude is None else exclude[rows]
-        return self.score(prior_mean[rows], log_var, chunk_size=256, dtype=torch.float64, exclude=sub_exclude).value
+        """float64 values of the given prior rows: settles the rows whose side of the selection cut is uncertain.
+
+        Rows are gathered a slice at a time, so even a degenerate case (every row uncertain) stays in bounded
+        memory; it then costs about twice the float32 pass."""
+        out = torch.empty(len(rows), dtype=torch.float64)
+        for start in range(0, len(rows), _EXACT_SLICE):
+            part = rows[start : start + _EXACT_SLICE]
+            log_var = None if prior_log_var is None else prior_log_var[part]
+            sub_exclude = None if exclude is None else exclude[part]
+            scores = self.score(prior_mean[part], log_var, chunk_size=256, dtype=torch.float64, exclude=sub_exclude)
+            out[start : start + len(part)] = scores.value
+        return out
 
     def _kth_nearest(self, block: Tensor) -> tuple[Tensor, Tensor]:
         """Row-wise k-th smallest value and the column of the smallest."""
@@ -197,5 +206,5 @@ class NearestTarget:
         """Mean of prior and target latents together (float64, one chunked pass over the prior, no copy)."""
         total = self.target_mean.sum(0)
         for start in range(0, prior_mean.shape[0], chunk_size):
-            total = total + prior_mean[start : start + chunk_size].to(torch.float64).sum(0)
+            total = total + prior_mean[start : start + chunk_size].sum(0, dtype=torch.float64)
         return total / (prior_mean.shape[0] + self.target_mean.shape[0])
