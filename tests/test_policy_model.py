@@ -21,8 +21,18 @@ from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fi
 from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
 from lerobot_skillret.policy.latent_policy import RETRIEVED_ID, TARGET_ID
 from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
+from lerobot_skillret.policy.networks import ObservationEncoder, center_crop, random_crop
 from lerobot_skillret.policy.processor_skillret import make_skillret_pre_post_processors
 from lerobot_skillret.retrieval.schema import RetrievalResult
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """One intra-op thread: on the shared 2-core machine oversubscribed threads slow tiny models ~20x."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
 
 
 @pytest.fixture(scope="module")
@@ -286,3 +296,64 @@ def test_decoder_scaling_is_the_stage1_one(stage1_dir, target_root):
         assert torch.equal(processed[key], value)
     action = torch.randn(3, 7)
     assert torch.equal(post(action), action)
+
+
+def test_cameras_train_both_stages_and_act(tmp_path):
+    """With a camera, the windows the policy fetches itself (temporal pairs, prior windows) carry its frames too,
+    and both stages train and act (8x8 images: the encoder itself is tested on larger ones below)."""
+    root = make_synthetic_dataset(tmp_path / "ds", PRIOR_REPO, num_episodes=2, max_len=20, with_images=True)
+    config = tiny_config(crop_shape=(6, 6))
+    policy = build_policy(config, PRIOR_REPO, root)
+    assert policy.image_keys == ["observation.images.agentview"]
+    loss, info = policy.forward(training_batch(config, PRIOR_REPO, root, size=2))
+    loss.backward()
+    assert info["tc_loss"] > 0 and _grad_norm(policy.skills.encoder.obs_encoder.low_dim_net) > 0
+
+    two = build_policy(
+        tiny_config(
+            crop_shape=(6, 6), stage="policy", use_retrieval=False, prior_repo_id=PRIOR_REPO, prior_root=str(root)
+        ),
+        PRIOR_REPO,
+        root,
+    )
+    loss, info = two.forward(training_batch(two.config, PRIOR_REPO, root, size=2))
+    assert "policy_target_loss" in info and torch.isfinite(loss)
+    two.reset()
+    batch = training_batch(two.config, PRIOR_REPO, root, size=2)
+    observation = {key: batch[key][:, 0] for key in two.observation_keys}
+    assert two.select_action(observation).shape == (2, 7)
+
+
+def test_rollout_decoder_step_matches_the_training_decoder(prior_root):
+    """select_action's single-step decoder (lstm_cell, state carried) computes what training's nn.LSTM computes."""
+    config = tiny_config()
+    policy = build_policy(config, PRIOR_REPO, prior_root).eval()
+    window = policy._window(training_batch(config, PRIOR_REPO, prior_root, size=3))
+    z = torch.randn(3, config.latent_dim)
+    with torch.no_grad():
+        expected, _ = policy.skills.decoder(z, window)
+        state = None
+        for t in range(config.horizon):
+            action, state = policy.skills.decoder.step(z, {k: window[k][:, t] for k in policy.observation_keys}, state)
+            assert torch.allclose(action, expected[:, t], atol=1e-6)
+
+
+def test_observation_encoder_cameras_crop_and_learn():
+    """ResNet-18 + spatial softmax per camera, concatenated after the low-dim MLP; random crop in training,
+    centre crop at inference; gradients reach the backbone."""
+    encoder = ObservationEncoder({"observation.state": (6,)}, {"cam": (3, 64, 64)}, (16,), (56, 56), 8)
+    assert encoder.out_dim == 16 + 2 * 8
+    observation = {"observation.state": torch.randn(2, 3, 6), "cam": torch.rand(2, 3, 3, 64, 64)}
+    out = encoder(observation)
+    assert out.shape == (2, 3, 32)
+    out.pow(2).sum().backward()
+    assert _grad_norm(encoder.cameras[0].trunk) > 0
+    encoder.eval()
+    assert torch.equal(encoder(observation), encoder(observation))  # centre crop: deterministic
+    images = torch.arange(2 * 3 * 10 * 10, dtype=torch.float32).reshape(2, 3, 10, 10)
+    crops = random_crop(images, (4, 4), torch.Generator().manual_seed(0))
+    assert crops.shape == (2, 3, 4, 4)
+    for crop, image in zip(crops, images, strict=True):  # each crop is a contiguous window of its own image
+        top, left = divmod(int(crop[0, 0, 0] - image[0, 0, 0]), 10)
+        assert torch.equal(crop, image[:, top : top + 4, left : left + 4])
+    assert torch.equal(center_crop(images, (4, 4)), images[..., 3:7, 3:7])

@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
+from types import EllipsisType
 
 import torch
 from huggingface_hub import ModelCard
@@ -92,13 +93,14 @@ class SkillRetPolicy(PreTrainedPolicy):
 
     # --- inputs -----------------------------------------------------------------------------------------------
 
-    def _observations(self, raw: Batch, steps: slice) -> dict[str, Tensor]:
+    def _observations(self, raw: Batch, steps: slice | EllipsisType) -> dict[str, Tensor]:
+        """Normalised observation tensors of `raw` at time `steps` of (B, T, ...) (`...`: no time axis)."""
         device = self._device()
         missing = [key for key in self.observation_keys if key not in raw]
         if missing:
             raise KeyError(f"skillret needs observation key(s) {missing}; the batch has {sorted(raw)}.")
         return {
-            key: self.normalizer.normalize(key, raw[key][:, steps].to(device, torch.float32))
+            key: self.normalizer.normalize(key, raw[key][(slice(None), steps)].to(device, torch.float32))
             for key in self.observation_keys
         }
 
@@ -234,7 +236,7 @@ class SkillRetPolicy(PreTrainedPolicy):
         """Forget the observation history and the running skill (call at every episode start)."""
         self._history_frames: deque[dict[str, Tensor]] = deque(maxlen=self.config.history)
         self._skill: Tensor | None = None
-        self._decoder_state: tuple[Tensor, Tensor] | None = None
+        self._decoder_state: list[tuple[Tensor, Tensor]] | None = None
         self._steps_left = 0
 
     def _push_observation(self, batch: Batch) -> dict[str, Tensor]:
@@ -242,12 +244,7 @@ class SkillRetPolicy(PreTrainedPolicy):
 
         After `reset()` the first observation fills the whole history: the training windows were padded the
         same way at an episode's start (LeRobot repeats its first frame)."""
-        frame = {
-            key: value[:, 0]
-            for key, value in self._observations(
-                {key: batch[key][:, None] for key in self.observation_keys}, slice(None)
-            ).items()
-        }
+        frame = self._observations(batch, ...)
         if not self._history_frames:
             self._history_frames.extend([frame] * self.config.history)
         else:
@@ -263,21 +260,21 @@ class SkillRetPolicy(PreTrainedPolicy):
         ids = torch.full((size,), TARGET_ID, dtype=torch.long, device=self._device())
         return self.latent_policy(history, ids)
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def select_action(self, batch: dict[str, Tensor]) -> Tensor:
         """(B, A) unnormalised action. Every H steps z = pi(history, id=target); in between, the closed-loop
         decoder runs one step on the current observation, its LSTM state carried across the H steps."""
-        self.eval()
+        if self.training:
+            self.eval()
         frame = self._push_observation(batch)
         if self._steps_left == 0:
             self.normalizer.check_ready()
             self._skill = self._choose_skill()
             self._decoder_state = None
             self._steps_left = self.config.horizon
-        current = {key: value[:, None] for key, value in frame.items()}
-        action, self._decoder_state = self.skills.decoder(self._skill, current, self._decoder_state)
+        action, self._decoder_state = self.skills.decoder.step(self._skill, frame, self._decoder_state)
         self._steps_left -= 1
-        return self.normalizer.unnormalize(ACTION, action[:, 0])
+        return self.normalizer.unnormalize(ACTION, action)
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor]) -> Tensor:

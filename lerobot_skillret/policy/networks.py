@@ -7,6 +7,7 @@ feature map is pooled to keypoints by a spatial softmax, with random-crop augmen
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping, Sequence
 
 import torch
@@ -82,8 +83,16 @@ class CameraEncoder(nn.Module):
             resnet.conv1 = nn.Conv2d(channels, 64, kernel_size=7, stride=2, padding=3, bias=False)
         self.trunk = nn.Sequential(*list(resnet.children())[:-2])  # drop average pooling and the classifier
         in_h, in_w = self.crop_shape or (height, width)
-        with torch.no_grad():
-            feature_shape = self.trunk(torch.zeros(1, channels, in_h, in_w)).shape
+        with torch.no_grad():  # probe in eval mode: batch norm cannot train on one 1x1 feature map
+            feature_shape = self.trunk.eval()(torch.zeros(1, channels, in_h, in_w)).shape
+        self.trunk.train()
+        if feature_shape[2] * feature_shape[3] == 1:
+            logging.warning(
+                "skillret: camera images of %sx%s leave a 1x1 ResNet feature map; its spatial softmax carries no "
+                "image information. Use images of at least 64x64 (the seed crops 76x76 from 84x84).",
+                in_h,
+                in_w,
+            )
         self.pool = SpatialSoftmax(feature_shape[1], feature_shape[2], feature_shape[3], num_keypoints)
         self.out_dim = 2 * num_keypoints
 

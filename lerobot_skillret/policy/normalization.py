@@ -76,10 +76,10 @@ class SkillNormalizer(nn.Module):
         if key not in self.modes:
             return value
         name = _buffer_name(key)
-        return (value - getattr(self, f"{name}_shift")) / getattr(self, f"{name}_scale")
+        return (value - self._buffers[f"{name}_shift"]) / self._buffers[f"{name}_scale"]
 
     def unnormalize(self, key: str, value: Tensor) -> Tensor:
         if key not in self.modes:
             return value
         name = _buffer_name(key)
-        return value * getattr(self, f"{name}_scale") + getattr(self, f"{name}_shift")
+        return value * self._buffers[f"{name}_scale"] + self._buffers[f"{name}_shift"]

@@ -1,0 +1,192 @@
+"""skillret training-step time (cpu and paper configs, both stages) and select_action latency next to LeRobot's ACT.
+
+Training step = the policy's whole forward (including the windows it fetches itself: temporal pairs, prior and
+retrieved windows) + backward + Adam step, on low-dim observations shaped like the kitchen's, batches as
+lerobot-train gives them (loading the batch itself is not timed). select_action is timed per step on CPU, batch 1,
+low-dim, against ACT with LeRobot's default sizes on the same observation (default chunking, and chunk = H).
+
+Run: `.venv/bin/python benchmarks/policy_speed.py` (~2-4 min on 2 cores; `--skip-paper` for ~1 min).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+
+import torch
+from lerobot.configs.types import FeatureType
+from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+from lerobot.datasets.utils import dataset_to_policy_features
+from lerobot.policies.act.configuration_act import ACTConfig
+from lerobot.policies.act.modeling_act import ACTPolicy
+
+from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
+from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
+from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
+from lerobot_skillret.retrieval.schema import RetrievalResult
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from synthetic import make_synthetic_dataset
+
+STATE_DIM, ENV_DIM, ACTION_DIM = 20, 13, 7  # like the kitchen observations
+CONFIGS = Path(__file__).resolve().parents[1] / "configs" / "policy"
+
+
+def _parse() -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (1 is stable when shared)")
+    parser.add_argument("--skip-paper", action="store_true", help="skip the GPU-scale paper config (slow on CPU)")
+    parser.add_argument("--act-steps", type=int, default=300, help="select_action steps timed per policy")
+    return parser.parse_args()
+
+
+def policy_fields(name: str) -> dict:
+    """The `policy` section of configs/policy/<name>.json (one source of truth for the sizes)."""
+    fields = json.loads((CONFIGS / f"{name}.json").read_text())["policy"]
+    fields.pop("type")
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}
+
+
+def make_policy(fields: dict, root: Path, repo_id: str, **overrides) -> SkillRetPolicy:
+    config = SkillRetConfig(**{**fields, **overrides, "device": "cpu", "push_to_hub": False})
+    meta = LeRobotDatasetMetadata(repo_id, root=root)
+    features = dataset_to_policy_features(meta.features)
+    config.output_features = {k: f for k, f in features.items() if f.type is FeatureType.ACTION}
+    config.input_features = {k: f for k, f in features.items() if k not in config.output_features}
+    return SkillRetPolicy(config, dataset_stats=meta.stats, dataset_meta=meta)
+
+
+def batches(policy: SkillRetPolicy, root: Path, repo_id: str, batch_size: int, count: int) -> list[dict]:
+    config, fps = policy.config, LeRobotDatasetMetadata(repo_id, root=root).fps
+    deltas = {k: [i / fps for i in config.observation_delta_indices] for k in config.input_features}
+    deltas["action"] = [i / fps for i in config.action_delta_indices]
+    loader = torch.utils.data.DataLoader(
+        LeRobotDataset(repo_id, root=root, delta_timestamps=deltas), batch_size=batch_size, shuffle=True
+    )
+    out: list[dict] = []
+    while len(out) < count:
+        out.extend(batch for batch, _ in zip(loader, range(count - len(out)), strict=False))
+    return out
+
+
+def time_training(policy: SkillRetPolicy, data: list[dict], warmup: int = 2) -> float:
+    """Median seconds per forward + backward + Adam step."""
+    optimizer = torch.optim.Adam(policy.get_optim_params())
+    policy.train()
+    times = []
+    for i, batch in enumerate(data):
+        start = time.perf_counter()
+        loss, _ = policy.forward(batch)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        if i >= warmup:
+            times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def time_select_action(policy, observations: list[dict]) -> float:
+    """Mean seconds per select_action call over an episode-like sequence (reset first)."""
+    policy.reset()
+    with torch.no_grad():
+        for obs in observations[:20]:
+            policy.select_action(obs)
+        policy.reset()
+        start = time.perf_counter()
+        for obs in observations:
+            policy.select_action(obs)
+    return (time.perf_counter() - start) / len(observations)
+
+
+def stage2_policy(fields: dict, prior: Path, target: Path, work: Path) -> SkillRetPolicy:
+    """Stage 2 with prior fine-tuning and retrieval of 10% of the prior frames (random anchors here)."""
+    stage1 = make_policy(fields, prior, "bench/prior")
+    folder = work / f"stage1-{len(list(work.iterdir()))}"
+    stage1.save_pretrained(folder)
+    frames = LeRobotDatasetMetadata("bench/prior", root=prior).total_frames
+    index = torch.randperm(frames)[: frames // 10]
+    path = RetrievalResult(
+        prior_index=index,
+        distance=torch.zeros(len(index)),
+        latent=torch.randn(len(index), fields["latent_dim"]),
+        checkpoint_fingerprint=checkpoint_fingerprint(folder),
+        prior_fingerprint=dataset_fingerprint(prior),
+        target_fingerprint=dataset_fingerprint(target),
+    ).save(work / f"retrieval-{folder.name}.safetensors")
+    policy = make_policy(
+        fields,
+        target,
+        "bench/target",
+        stage="policy",
+        prior_repo_id="bench/prior",
+        prior_root=str(prior),
+        retrieval_path=str(path),
+    )
+    policy.load_state_dict(stage1.state_dict())
+    policy.config.pretrained_path = folder
+    return policy
+
+
+def main() -> None:
+    args = _parse()
+    torch.set_num_threads(args.threads)
+    torch.manual_seed(0)
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        dims = dict(state_dim=STATE_DIM, env_dim=ENV_DIM, action_dim=ACTION_DIM)
+        prior = make_synthetic_dataset(work / "prior", "bench/prior", num_episodes=8, min_len=150, max_len=250, **dims)
+        target = make_synthetic_dataset(
+            work / "target", "bench/target", num_episodes=4, min_len=150, max_len=250, seed=1, **dims
+        )
+        (work / "ckpt").mkdir()
+        print(f"torch threads: {torch.get_num_threads()}; obs: state {STATE_DIM} + env {ENV_DIM}, action {ACTION_DIM}")
+        print("\n== training step (forward + backward + Adam; median) ==")
+        for name in ("cpu", *(() if args.skip_paper else ("paper",))):
+            fields = policy_fields(name)
+            batch_size = {"cpu": 64, "paper": 16}[name]
+            steps = 8 if name == "paper" else 15
+            one = make_policy(fields, prior, "bench/prior")
+            t1 = time_training(one, batches(one, prior, "bench/prior", batch_size, steps))
+            two = stage2_policy(fields, prior, target, work / "ckpt")
+            t2 = time_training(two, batches(two, target, "bench/target", batch_size, steps))
+            print(
+                f"{name:>6} config, batch {batch_size}: stage 1 {1e3 * t1:7.1f} ms/step   stage 2 {1e3 * t2:7.1f} ms/step"
+            )
+
+        print("\n== select_action latency (CPU, batch 1, low-dim; mean per step) ==")
+        skill = make_policy(policy_fields("cpu"), prior, "bench/prior").eval()
+        generator = torch.Generator().manual_seed(0)
+        observations = [
+            {
+                k: torch.randn(1, *skill.config.input_features[k].shape, generator=generator)
+                for k in skill.observation_keys
+            }
+            for _ in range(args.act_steps)
+        ]
+        rows = [("skillret (cpu config)", time_select_action(skill, observations))]
+        for label, act_overrides in (
+            ("ACT default (chunk 100)", {}),
+            (
+                f"ACT default, chunk {skill.config.horizon}",
+                {"chunk_size": skill.config.horizon, "n_action_steps": skill.config.horizon},
+            ),
+        ):
+            act_config = ACTConfig(device="cpu", push_to_hub=False, **act_overrides)
+            act_config.input_features = dict(skill.config.input_features)
+            act_config.output_features = dict(skill.config.output_features)
+            act = ACTPolicy(act_config).eval()
+            rows.append((label, time_select_action(act, observations)))
+        for label, seconds in rows:
+            print(f"{label:>28}: {1e3 * seconds:7.3f} ms/step")
+
+
+if __name__ == "__main__":
+    main()
