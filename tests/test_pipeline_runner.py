@@ -102,7 +102,7 @@ def test_plan_wires_each_ablation(tmp_path: Path) -> None:
     assert "cook_random_seed0" in cmds["random_retrieval"]
     assert "--policy.use_retrieval=false" in cmds["no_retrieval"] and "prior_seed0" in cmds["no_retrieval"]
     assert "target_cook_seed0" in cmds["no_prior"] and "--policy.prior_repo_id=null" in cmds["no_prior"]
-    assert "--mode=random" in " ".join(plan.retrieval_stage("cook", "random", 0).command)
+    assert "--ablation=random" in " ".join(plan.retrieval_stage("cook", "random", 0).command)
 
 
 def _cell(root: Path, method: str, task: str, seed: int, success: float) -> None:

@@ -31,7 +31,7 @@ RETRIEVAL_MODE = {
     "no_retrieval": None,
     "no_prior": None,
 }
-RETRIEVAL_ARGS = {"default": {}, "all": {"mode": "all"}, "random": {"mode": "random"}}
+RETRIEVAL_ARGS = {"default": {}, "all": {"ablation": "all"}, "random": {"ablation": "random"}}
 
 
 def cli_args(options: dict[str, Any]) -> list[str]:
