@@ -56,7 +56,10 @@ def test_defaults_are_the_papers() -> None:
     assert (cfg.kl_weight, cfg.tc_weight, cfg.retrieved_weight) == (1e-5, 1e-6, 1.0)
     assert (cfg.skill_lr, cfg.tc_lr, cfg.policy_lr) == (5e-4, 1e-4, 1e-3)
     assert (cfg.retrieval_num_prior, cfg.retrieval_num_target, cfg.retrieval_fraction) == (250_000, 2_500, 0.1)
-    assert cfg.observation_delta_indices == list(range(-9, 10)) and cfg.action_delta_indices == list(range(10))
+    assert cfg.action_delta_indices == list(range(10))
+    assert cfg.observation_delta_indices == list(range(10))  # stage 1 sees the window only
+    policy_stage = SkillRetConfig(device="cpu", stage="policy")
+    assert policy_stage.observation_delta_indices == list(range(-9, 10))  # F history frames + the window
 
 
 @pytest.mark.parametrize(
