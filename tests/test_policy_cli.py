@@ -26,6 +26,7 @@ from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
 from lerobot_skillret.retrieval.schema import RetrievalResult
 
 BIN = Path(sys.executable).parent
+CPU_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "policy" / "cpu.json"  # the documented commands
 # One intra-op thread: on a shared 2-core machine oversubscribed torch threads make tiny steps 20x slower.
 ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
 STATE_DIM, ENV_DIM, ACTION_DIM = 6, 5, 7
@@ -103,7 +104,7 @@ def lerobot_train(*args: str) -> None:
     result = subprocess.run(
         [
             str(BIN / "lerobot-train"),
-            "--policy.push_to_hub=false",
+            f"--config_path={CPU_CONFIG}",
             "--policy.device=cpu",
             "--num_workers=0",
             "--steps=3",
@@ -126,7 +127,6 @@ def test_two_stages_with_lerobot_train_then_lerobot_eval(tmp_path, monkeypatch):
 
     # Stage 1 (Algorithm 1) on the prior dataset.
     lerobot_train(
-        "--policy.type=skillret",
         "--policy.stage=skills",
         f"--dataset.repo_id={PRIOR_REPO}",
         f"--dataset.root={prior}",
