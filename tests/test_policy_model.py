@@ -357,3 +357,19 @@ def test_observation_encoder_cameras_crop_and_learn():
         top, left = divmod(int(crop[0, 0, 0] - image[0, 0, 0]), 10)
         assert torch.equal(crop, image[:, top : top + 4, left : left + 4])
     assert torch.equal(center_crop(images, (4, 4)), images[..., 3:7, 3:7])
+
+
+def test_implementation_only_extras_add_their_terms(prior_root):
+    """Slowness (nearby windows' means agree) and the inverse-dynamics head, off by default, are real losses."""
+    config = tiny_config(slowness_weight=1e-3, inverse_dynamics_weight=0.1)
+    policy = build_policy(config, PRIOR_REPO, prior_root)
+    loss, info = policy.forward(training_batch(config, PRIOR_REPO, prior_root))
+    assert info["slowness_loss"] > 0 and info["inverse_dynamics_loss"] > 0
+    loss.backward()
+    assert _grad_norm(policy.skills.inverse_dynamics) > 0
+    assert (
+        "slowness_loss"
+        not in build_policy(tiny_config(), PRIOR_REPO, prior_root).forward(
+            training_batch(config, PRIOR_REPO, prior_root)
+        )[1]
+    )
