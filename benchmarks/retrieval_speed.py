@@ -1,12 +1,13 @@
 """Time and peak extra memory of retrieval (Algorithm 2, lines 4-6) on random latents, printed as one table.
 
     .venv/bin/python benchmarks/retrieval_speed.py                  # everything (~2-3 minutes on 2 cores)
-    .venv/bin/python benchmarks/retrieval_speed.py --skip-public    # without the 5 GB dense float64 baseline
+    .venv/bin/python benchmarks/retrieval_speed.py --public-sizes   # without the 5 GB dense float64 baseline
 
 Each method runs in a fresh subprocess, so its peak resident memory is its own: "extra MiB" is the growth of the
 process's peak RSS (`ru_maxrss`, which also sees torch's allocations, unlike tracemalloc) from just after the
-latents were created to the end of the method. "time s" is the best of `--repeats` runs (the machine is shared
-with other jobs; the best run is the least disturbed one). Rows:
+latents were created to the end of the method. "time s" is the wall time of the best of `--repeats` runs (the
+machine is shared with other jobs; the best run is the least disturbed one) and "cpu s" that run's process CPU
+time (user + system, all threads): on a loaded machine cpu s / threads estimates the undisturbed wall time. Rows:
 
 - skillret l2 / kl: `select_windows` (chunked float32 GEMM + row minimum, float64 settling of rows near the cut,
   top-r selection); N prior x M target latents of dimension D.
@@ -31,6 +32,11 @@ SEED = 0
 
 def _peak_rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux reports KiB
+
+
+def _cpu_seconds() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
 
 
 def _latents(num_prior: int, num_target: int, dim: int):
@@ -80,14 +86,19 @@ def run_method(
         prior_log_var = -1.0 + 0.3 * torch.randn(num_prior, dim, generator=generator)
         target_log_var = -1.0 + 0.3 * torch.randn(num_target, dim, generator=generator)
     baseline = _peak_rss_mib()
-    times = []
+    runs = []
     for _ in range(repeats if method != "public" else 1):
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), _cpu_seconds()
         retrieved = _select(method, prior, target, prior_log_var, target_log_var, fraction)
-        times.append(time.perf_counter() - start)
-    seconds = min(times)
+        runs.append((time.perf_counter() - start, _cpu_seconds() - cpu_start))
+    seconds, cpu_seconds = min(runs)
     np.save(out, np.sort(retrieved))
-    return {"seconds": seconds, "extra_mib": _peak_rss_mib() - baseline, "threads": torch.get_num_threads()}
+    return {
+        "seconds": seconds,
+        "cpu_seconds": cpu_seconds,
+        "extra_mib": _peak_rss_mib() - baseline,
+        "threads": torch.get_num_threads(),
+    }
 
 
 def spawn(method: str, num_prior: int, num_target: int, dim: int, fraction: float, workdir: Path, repeats: int) -> dict:
@@ -109,11 +120,18 @@ def main() -> None:
     parser.add_argument(
         "--sizes",
         type=int,
-        nargs="+",
+        nargs="*",
         default=[250_000, 2_300_000],
-        help="prior sizes N (paper: 250k candidates; CALVIN's whole prior: 2.3M)",
+        help="prior sizes N for L2 (paper: 250k candidates; CALVIN's whole prior: 2.3M)",
     )
-    parser.add_argument("--skip-public", action="store_true", help="skip the dense float64 cdist baseline")
+    parser.add_argument("--kl-sizes", type=int, nargs="*", default=[250_000], help="prior sizes N for the KL metric")
+    parser.add_argument(
+        "--public-sizes",
+        type=int,
+        nargs="*",
+        default=[250_000],
+        help="prior sizes N for the dense float64 cdist baseline (~5 GB at 250k); none: skip it",
+    )
     parser.add_argument(
         "--repeats", type=int, default=3, help="runs per skillret row; the best time is printed (the machine is shared)"
     )
@@ -127,22 +145,20 @@ def main() -> None:
 
     import numpy as np
 
-    plan = [("skillret-l2", n) for n in args.sizes] + [("skillret-kl", min(args.sizes))]
-    if not args.skip_public:
-        plan.append(("public", min(args.sizes)))
+    plan = [("skillret-l2", n) for n in args.sizes] + [("skillret-kl", n) for n in args.kl_sizes]
+    plan += [("public", n) for n in args.public_sizes]
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for method, num_prior in plan:
             print(f"running {method} N={num_prior:,} ...", flush=True)
-            rows.append(
-                (method, num_prior, spawn(method, num_prior, args.num_target, args.dim, args.fraction, Path(tmp)))
-            )
+            result = spawn(method, num_prior, args.num_target, args.dim, args.fraction, Path(tmp), args.repeats)
+            rows.append((method, num_prior, result))
         reference = {n: np.load(r["selection"]) for m, n, r in rows if m == "public"}
         print(
             f"\nM={args.num_target:,} target latents, D={args.dim}, r={args.fraction:.0%}, fp32 inputs, "
             f"{rows[0][2]['threads']} torch threads"
         )
-        print(f"{'method':<30} {'N':>10} {'time s':>8} {'extra MiB':>10} {'same set as float64':>20}")
+        print(f"{'method':<30} {'N':>10} {'time s':>8} {'cpu s':>8} {'extra MiB':>10} {'same set as float64':>20}")
         for method, num_prior, result in rows:
             name = {
                 "skillret-l2": "skillret L2 (chunked GEMM)",
@@ -156,7 +172,10 @@ def main() -> None:
                 same = "(reference)"
             if method == "skillret-kl":
                 same = "n/a (other metric)"
-            print(f"{name:<30} {num_prior:>10,} {result['seconds']:>8.2f} {result['extra_mib']:>10.0f} {same:>20}")
+            print(
+                f"{name:<30} {num_prior:>10,} {result['seconds']:>8.2f} {result['cpu_seconds']:>8.2f} "
+                f"{result['extra_mib']:>10.0f} {same:>20}"
+            )
 
 
 if __name__ == "__main__":
