@@ -190,3 +190,52 @@ def test_two_stages_with_lerobot_train_then_lerobot_eval(tmp_path, monkeypatch):
     lerobot_eval.main()
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 2 and 0.0 <= info["overall"]["pc_success"] <= 100.0
+
+
+@pytest.mark.slow
+def test_lerobot_eval_on_the_kitchen_env(tmp_path, monkeypatch):
+    """A skillret checkpoint shaped by the `panda_kitchen` env's features rolls out in the robosuite kitchen
+    through lerobot-eval (toy scale: one short episode; the weights are untrained)."""
+    from lerobot.envs.utils import env_to_policy_features
+    from lerobot.scripts import lerobot_eval
+    from policy_fixtures import tiny_config
+
+    from lerobot_skillret.kitchen.env_config import PandaKitchenEnv
+    from lerobot_skillret.policy.processor_skillret import make_skillret_pre_post_processors
+
+    monkeypatch.setenv("MUJOCO_GL", os.environ.get("MUJOCO_GL", "egl"))
+    features = env_to_policy_features(PandaKitchenEnv())
+    config = tiny_config(stage="policy")
+    config.output_features = {k: f for k, f in features.items() if f.type is FeatureType.ACTION}
+    config.input_features = {k: f for k, f in features.items() if k not in config.output_features}
+    unit = {
+        k: {
+            "mean": torch.zeros(f.shape),
+            "std": torch.ones(f.shape),
+            "min": -torch.ones(f.shape),
+            "max": torch.ones(f.shape),
+        }
+        for k, f in features.items()
+    }
+    checkpoint = tmp_path / "pretrained_model"
+    SkillRetPolicy(config, dataset_stats=unit).save_pretrained(checkpoint)
+    for processor in make_skillret_pre_post_processors(config):
+        processor.save_pretrained(checkpoint)
+    monkeypatch.setattr(
+        sys,
+        "argv",
+        [
+            "lerobot-eval",
+            f"--policy.path={checkpoint}",
+            "--env.type=panda_kitchen",
+            "--env.episode_length=12",
+            "--eval.n_episodes=1",
+            "--eval.batch_size=1",
+            "--eval.use_async_envs=false",
+            "--policy.device=cpu",
+            f"--output_dir={tmp_path / 'eval'}",
+        ],
+    )
+    lerobot_eval.main()
+    info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
+    assert info["overall"]["n_episodes"] == 1
