@@ -117,6 +117,10 @@ def test_bad_inputs_have_clear_errors():
         NearestTarget(torch.randn(10))
     with pytest.raises(ValueError, match="neighbors=11"):
         NearestTarget(target, neighbors=11)
+    with pytest.raises(ValueError, match="prior latent means contain NaN"):
+        NearestTarget(target).score(torch.tensor([[float("nan")] * 8]))
+    with pytest.raises(ValueError, match="target latent log-variances contain NaN"):
+        NearestTarget(target, torch.full((10, 8), float("inf")), metric="kl")
     with pytest.raises(ValueError, match="chunk_size"):
         NearestTarget(target).score(torch.randn(5, 8), chunk_size=0)
     with pytest.raises(ValueError, match=r"r=1.5 must be in \[0, 1\]"):

@@ -47,6 +47,12 @@ def check_latents(mean: Tensor, log_var: Tensor | None, metric: str, name: str) 
         raise ValueError(f"Unknown retrieval metric {metric!r}: choose one of {METRICS}.")
     if mean.ndim != 2:
         raise ValueError(f"{name} latents must be a [num_windows, latent_dim] matrix; got {tuple(mean.shape)}.")
+    for values, what in ((mean, "means"), (log_var, "log-variances")):
+        if values is not None and not _all_finite(values):
+            raise ValueError(
+                f"The {name} latent {what} contain NaN/inf: the stage-1 checkpoint's encoder diverged or the "
+                f"{name} data has extreme values. Check the skills run's losses and the dataset."
+            )
     if metric == "kl":
         if log_var is None:
             raise ValueError(
@@ -55,6 +61,11 @@ def check_latents(mean: Tensor, log_var: Tensor | None, metric: str, name: str) 
             )
         if log_var.shape != mean.shape:
             raise ValueError(f"{name} log-variances {tuple(log_var.shape)} do not match the means {tuple(mean.shape)}.")
+
+
+def _all_finite(values: Tensor, rows: int = 1 << 16) -> bool:
+    """Chunked, so the check never allocates a mask the size of the whole prior."""
+    return all(bool(torch.isfinite(values[i : i + rows]).all()) for i in range(0, values.shape[0], rows))
 
 
 class NearestTarget:
