@@ -1,6 +1,8 @@
 """LeRobot EnvConfig `panda_kitchen`: lets `lerobot-eval --env.type=panda_kitchen --env.task=<task>` run.
 
-Features are derived from `observations` (the one observation layout). Import-light: no robosuite here.
+Features are derived from `observations` (the one observation layout). Importing this module also registers
+the `gym_panda_kitchen/<task>` gym ids (string entry points), so importing it is all `lerobot-eval` needs.
+Import-light: no robosuite here.
 """
 
 from __future__ import annotations
@@ -12,6 +14,9 @@ from lerobot.envs.configs import EnvConfig
 
 from lerobot_skillret.kitchen import observations as O
 from lerobot_skillret.kitchen.layout import CONTROL_FREQ
+from lerobot_skillret.kitchen.registration import register_envs
+
+register_envs()
 
 
 @EnvConfig.register_subclass("panda_kitchen")

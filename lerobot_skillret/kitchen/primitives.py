@@ -66,10 +66,11 @@ class Driver:
         action = np.asarray(action, dtype=np.float64).copy()
         if self.action_noise:
             action[:6] += self.rng.normal(0.0, self.action_noise, 6)
-        action = np.clip(action, -1.0, 1.0)
+        # float32 like the stored dataset actions, so a replay applies exactly the recorded numbers
+        action = np.clip(action, -1.0, 1.0).astype(np.float32)
         if self.on_step is not None:
             self.on_step(action, self.label)  # observation is taken before the step
-        self.scene.step(action)
+        self.scene.step(action.astype(np.float64))
         self.steps += 1
 
     def servo_action(self, target: np.ndarray, speed: float = 1.0) -> np.ndarray:

@@ -137,7 +137,18 @@ class KitchenScene(ManipulationEnv):
     def set_sim_state(self, state: np.ndarray) -> None:
         """Restore a flat MuJoCo state (time, qpos, qvel) saved by `get_sim_state`."""
         self.sim.set_state_from_flattened(np.asarray(state, dtype=np.float64))
+        self._cold_start()
+
+    def _cold_start(self) -> None:
+        """Clear the solver warm start (not part of the saved state) so a restored state steps identically."""
+        self.sim.data.qacc_warmstart[:] = 0.0
         self.sim.forward()
+        # The OSC controller caches the eef pose and goal (Python state): refresh them from the restored sim.
+        controller = self.robots[0].composite_controller
+        controller.update_state()
+        for arm in controller.arms:
+            controller.part_controllers[arm].update(force=True)
+            controller.part_controllers[arm].reset_goal()
         self._refresh_indicators()
 
     # ----- reset / step -----
@@ -160,7 +171,7 @@ class KitchenScene(ManipulationEnv):
         # Let objects settle onto their surfaces with the arm held still.
         for _ in range(5):
             self.step(np.zeros(7))
-        self._refresh_indicators()
+        self._cold_start()
 
     def step(self, action):
         out = super().step(action)

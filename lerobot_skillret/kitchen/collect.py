@@ -1,0 +1,82 @@
+"""Worker side of data generation: run one episode in a per-process scene and return its arrays.
+
+Workers only simulate; the parent process writes the dataset (one writer, ordered by episode seed).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lerobot_skillret.kitchen import observations as O
+from lerobot_skillret.kitchen.expert import reset_scene, run_expert
+from lerobot_skillret.kitchen.play import play_scene_task, run_play
+from lerobot_skillret.kitchen.primitives import Driver
+from lerobot_skillret.kitchen.tasks import get_task
+
+PLAY_ACTION_NOISE = 0.05
+PLAY_JITTER = 0.005
+DEMO_ACTION_NOISE = 0.0
+DEMO_JITTER = 0.003
+
+
+@dataclass
+class EpisodeJob:
+    kind: str  # "play" or "demos"
+    seed: int
+    task: str | None = None  # demos only
+    steps: int = 0  # play only: frames per episode
+    cameras: tuple[str, ...] = ()
+    image_size: int = O.DEFAULT_IMAGE_SIZE
+
+
+@dataclass
+class Episode:
+    seed: int
+    task: str  # the task whose scene/demo this is ("play" episodes: the scene's source task)
+    success: bool
+    initial_state: np.ndarray
+    frames: dict[str, list] = field(default_factory=dict)  # dataset key -> per-frame values
+    log: list = field(default_factory=list)
+
+
+_WORKER: dict = {}
+
+
+def _scene(cameras: tuple[str, ...], image_size: int):
+    key = (cameras, image_size)
+    if _WORKER.get("key") != key:
+        from lerobot_skillret.kitchen.rendering import CameraRenderer
+        from lerobot_skillret.kitchen.scene import KitchenScene
+
+        scene = _WORKER.get("scene") or KitchenScene()
+        _WORKER.update(key=key, scene=scene, cam=CameraRenderer(scene, image_size) if cameras else None)
+    return _WORKER["scene"], _WORKER["cam"]
+
+
+def run_episode(job: EpisodeJob) -> Episode:
+    scene, cam = _scene(job.cameras, job.image_size)
+    rng = np.random.default_rng(job.seed)
+    task = get_task(job.task) if job.kind == "demos" else play_scene_task(rng)
+    reset_scene(scene, task, rng)
+    episode = Episode(seed=job.seed, task=task.name, success=False, initial_state=scene.get_sim_state())
+    frames: dict[str, list] = {}
+
+    def record(action: np.ndarray, label: int) -> None:
+        for key, value in O.to_dataset_frame(O.build_observation(scene, cam, job.cameras)).items():
+            frames.setdefault(key, []).append(value)
+        frames.setdefault("action", []).append(action.astype(np.float32))
+        frames.setdefault(O.PRIMITIVE_KEY, []).append(np.array([label], dtype=np.int64))
+
+    if job.kind == "demos":
+        driver = Driver(scene, rng, DEMO_ACTION_NOISE, DEMO_JITTER, budget=task.max_steps, on_step=record)
+        episode.success = run_expert(driver, task)
+    elif job.kind == "play":
+        driver = Driver(scene, rng, PLAY_ACTION_NOISE, PLAY_JITTER, budget=job.steps, on_step=record)
+        episode.log = [(s.primitive, *s.args, ok) for s, ok in run_play(driver, rng)]
+        episode.success = True
+    else:
+        raise ValueError(f"unknown episode kind {job.kind!r}; use 'play' or 'demos'")
+    episode.frames = frames
+    return episode

@@ -1,0 +1,214 @@
+"""`skillret-generate`: write kitchen play data or task demonstrations as a local LeRobotDataset (v3.0).
+
+Episodes are simulated in worker processes (seeded per episode, so the output depends only on --seed and the
+sizes, not on --workers) and written by this process into a temporary folder renamed into place at the end:
+an interrupted run leaves no dataset behind. Besides the LeRobot files the dataset root holds
+`meta/kitchen.json`: primitive names (for the `primitive_index` column), per-episode task, seed, success and
+initial MuJoCo state (for exact replays), and the generator settings.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import shutil
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from tqdm import tqdm
+
+from lerobot_skillret.kitchen import observations as O
+from lerobot_skillret.kitchen.collect import Episode, EpisodeJob, run_episode
+from lerobot_skillret.kitchen.layout import CONTROL_FREQ
+from lerobot_skillret.kitchen.tasks import TASKS
+
+KITCHEN_META = "meta/kitchen.json"
+PLAY_TASK_TEXT = "play"
+DEFAULT_PLAY_EPISODES = 150
+DEFAULT_PLAY_STEPS = 2000
+DEFAULT_DEMOS = 30
+MAX_ATTEMPTS_FACTOR = 3  # demos: give up after this many attempts per requested episode
+
+
+def _episode_seed(seed: int, index: int) -> int:
+    return seed * 1_000_003 + index
+
+
+def _write_episode(dataset, episode: Episode, task_text: str) -> None:
+    n = len(episode.frames["action"])
+    for i in range(n):
+        frame = {key: values[i] for key, values in episode.frames.items()}
+        frame["task"] = task_text
+        dataset.add_frame(frame)
+    dataset.save_episode()
+
+
+@contextmanager
+def _episode_stream(jobs: list[EpisodeJob], workers: int) -> Iterator[Iterator[Episode]]:
+    """Episodes in job order, simulated by `workers` spawned processes (0: in this process, for tests)."""
+    if workers == 0:
+        yield map(run_episode, jobs)
+        return
+    with mp.get_context("spawn").Pool(workers) as pool:
+        yield pool.imap(run_episode, jobs)
+        pool.terminate()
+
+
+def _jobs(args) -> list[EpisodeJob]:
+    cams = tuple(args.cameras)
+    if args.kind == "play":
+        return [
+            EpisodeJob("play", _episode_seed(args.seed, i), steps=args.steps_per_episode, cameras=cams)
+            for i in range(args.episodes)
+        ]
+    return [
+        EpisodeJob("demos", _episode_seed(args.seed, i), task=args.task, cameras=cams)
+        for i in range(args.episodes * MAX_ATTEMPTS_FACTOR)
+    ]
+
+
+def generate(args) -> Path:
+    """Generate the dataset described by parsed CLI `args`; returns its root."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    root = Path(args.root).expanduser().resolve()
+    if root.exists() and not args.overwrite:
+        raise FileExistsError(f"{root} already exists; pass --overwrite or choose another --root")
+    root.parent.mkdir(parents=True, exist_ok=True)
+    tmp = root.parent / f".{root.name}.tmp-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    features = O.dataset_features(tuple(args.cameras), O.DEFAULT_IMAGE_SIZE)
+    jobs = _jobs(args)
+    episodes_meta, attempts, failures = [], 0, 0
+    try:
+        dataset = LeRobotDataset.create(
+            args.repo_id,
+            fps=CONTROL_FREQ,
+            features=features,
+            root=tmp,
+            robot_type="panda",
+            use_videos=bool(args.cameras),
+        )
+        with _episode_stream(jobs, args.workers) as stream:
+            bar = tqdm(total=args.episodes, desc=f"{args.kind} episodes", unit="ep")
+            for episode in stream:
+                attempts += 1
+                if args.kind == "demos" and not episode.success:
+                    failures += 1
+                    continue
+                task_text = TASKS[args.task].description if args.kind == "demos" else PLAY_TASK_TEXT
+                _write_episode(dataset, episode, task_text)
+                episodes_meta.append(
+                    {
+                        "episode_index": len(episodes_meta),
+                        "seed": episode.seed,
+                        "scene_task": episode.task,
+                        "success": episode.success,
+                        "length": len(episode.frames["action"]),
+                        "initial_state": episode.initial_state.tolist(),
+                        "primitives": [list(map(str, entry)) for entry in episode.log],
+                    }
+                )
+                bar.update(1)
+                if len(episodes_meta) == args.episodes:
+                    break
+            bar.close()
+        dataset.finalize()
+        if len(episodes_meta) < args.episodes:
+            raise RuntimeError(
+                f"only {len(episodes_meta)} of {args.episodes} successful demos in {attempts} attempts; "
+                "the scripted expert is failing, check the task"
+            )
+        meta = {
+            "kind": args.kind,
+            "task": args.task,
+            "seed": args.seed,
+            "cameras": list(args.cameras),
+            "primitive_names": list(_primitive_names()),
+            "attempts": attempts,
+            "failed_attempts": failures,
+            "episodes": episodes_meta,
+        }
+        (tmp / KITCHEN_META).write_text(json.dumps(meta))
+        if root.exists():
+            shutil.rmtree(root)
+        os.replace(tmp, root)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    if args.kind == "demos":
+        print(f"{args.task}: kept {len(episodes_meta)} successful demos of {attempts} attempts ({failures} failed)")
+    print(f"wrote {root}")
+    return root
+
+
+def _primitive_names() -> tuple[str, ...]:
+    from lerobot_skillret.kitchen.primitives import PRIMITIVES
+
+    return PRIMITIVES
+
+
+def load_kitchen_meta(root: str | Path) -> dict:
+    """The generator's side file of a dataset root (primitive names, per-episode initial states, ...)."""
+    return json.loads((Path(root) / KITCHEN_META).read_text())
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="skillret-generate",
+        description="Generate Panda kitchen data as a local LeRobotDataset v3.0: task-agnostic play (prior data) "
+        "or scripted demonstrations of one task (target data).",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    sub = parser.add_subparsers(dest="kind", required=True)
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--root", "--output", dest="root", required=True, help="dataset folder to create")
+    common.add_argument("--repo-id", default=None, help="dataset repo id stored in the metadata (never pushed)")
+    common.add_argument("--seed", type=int, default=0, help="base seed; episode i uses a seed derived from it")
+    common.add_argument(
+        "--workers", type=int, default=2, help="simulation worker processes (0: simulate in this process)"
+    )
+    common.add_argument(
+        "--cameras", nargs="*", default=[], choices=O.CAMERAS, help="84x84 cameras to record (default: none)"
+    )
+    common.add_argument("--overwrite", action="store_true", help="replace an existing dataset at --root")
+    play = sub.add_parser(
+        "play",
+        parents=[common],
+        help="random primitives from randomised scenes (prior data)",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    play.add_argument("--episodes", type=int, default=DEFAULT_PLAY_EPISODES)
+    play.add_argument("--steps-per-episode", type=int, default=DEFAULT_PLAY_STEPS)
+    demos = sub.add_parser(
+        "demos",
+        parents=[common],
+        help="successful scripted demos of one task (target data)",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    demos.add_argument("--task", required=True, choices=sorted(TASKS))
+    demos.add_argument("--episodes", type=int, default=DEFAULT_DEMOS)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = build_parser().parse_args(argv)
+    if args.episodes < 1 or args.workers < 0:
+        sys.exit("--episodes must be >= 1 and --workers >= 0")
+    if args.kind == "play" and args.steps_per_episode < 1:
+        sys.exit("--steps-per-episode must be >= 1")
+    if args.kind == "play":
+        args.task = None
+    if args.repo_id is None:
+        args.repo_id = f"local/kitchen_{args.kind}" + (f"_{args.task}" if args.task else "")
+    try:
+        generate(args)
+    except FileExistsError as e:
+        sys.exit(str(e))
+
+
+if __name__ == "__main__":
+    main()

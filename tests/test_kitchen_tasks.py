@@ -1,0 +1,91 @@
+"""Kitchen task definitions, predicates and initial-state sampling (no simulator needed)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lerobot_skillret.kitchen import layout
+from lerobot_skillret.kitchen import predicates as P
+from lerobot_skillret.kitchen.primitives import PLACE_REGIONS, PRIMITIVES
+from lerobot_skillret.kitchen.sampling import CLEARANCE, sample_poses
+from lerobot_skillret.kitchen.tasks import TASKS, get_task
+
+
+class FakeScene:
+    """Bodies at given positions (identity orientation) and given joint values."""
+
+    def __init__(self, positions: dict[str, tuple[float, float, float]], joints: dict[str, float]):
+        self.positions = {k: np.array(v, dtype=float) for k, v in positions.items()}
+        self.joints = joints
+
+    def body_pos(self, name):
+        return self.positions[name]
+
+    def body_quat(self, name):
+        return np.array([1.0, 0.0, 0.0, 0.0])
+
+    def joint(self, name):
+        return self.joints[name]
+
+
+def _breakfast_scene(butter_dy: float) -> FakeScene:
+    cx, cy = layout.FIXTURES["serving"]
+    return FakeScene(
+        {
+            "bread": (cx, cy, layout.item_rest_z("bread", layout.TABLE_Z + 0.01)),
+            "butter": (cx, cy + butter_dy, layout.item_rest_z("butter", layout.TABLE_Z + 0.004)),
+            "milk": (cx, cy - 0.09, layout.item_rest_z("milk", layout.TABLE_Z + 0.004)),
+        },
+        {},
+    )
+
+
+def test_breakfast_goal_depends_on_side_of_plate():
+    task = get_task("breakfast")
+    assert task.success(_breakfast_scene(+0.09))
+    assert task.unmet(_breakfast_scene(-0.09)) == ["butter_left_of_plate"]
+
+
+def test_switch_and_drawer_predicates_read_joints():
+    scene = FakeScene({}, {"light_switch_joint": 0.02, "burner_switch_joint": -0.02, "drawer_slide": -0.19})
+    assert P.switch_on("light")(scene) and P.switch_on("burner", on=False)(scene)
+    assert P.drawer_open()(scene) and not P.drawer_closed()(scene)
+
+
+def test_in_drawer_follows_the_tray():
+    tray = (*layout.drawer_tray_xy(-0.2), 0.9)
+    scene = FakeScene({"drawer_tray": tray, "block_red": (tray[0], tray[1], layout.DRAWER_FLOOR_Z + 0.02)}, {})
+    assert P.in_drawer("block_red")(scene)
+    scene.positions["block_red"] = np.array([tray[0] + 0.2, tray[1], layout.TABLE_Z + 0.02])
+    assert not P.in_drawer("block_red")(scene)
+
+
+def test_registry_is_consistent():
+    assert {"breakfast", "cook", "setup_pan", "setting_up", "cleaning_up"} <= set(TASKS)
+    for task in TASKS.values():
+        assert task.goals and task.max_steps > 0 and task.description
+        assert set(task.init) <= set(layout.MOVABLES)
+        for step in task.plan:
+            assert step.primitive in PRIMITIVES
+            if step.primitive == "pick_place":
+                assert step.args[0] in layout.ITEMS and step.args[1] in PLACE_REGIONS
+    with pytest.raises(KeyError, match="Unknown kitchen task"):
+        get_task("nope")
+
+
+@pytest.mark.parametrize("name", sorted(TASKS))
+def test_sampling_is_seeded_and_keeps_clearance(name):
+    task = TASKS[name]
+    poses_a, joints_a = sample_poses(task, np.random.default_rng(3))
+    poses_b, _ = sample_poses(task, np.random.default_rng(3))
+    assert poses_a == poses_b and set(poses_a) == set(layout.MOVABLES)
+    assert joints_a == task.joints
+    on_table = [n for n in task.init if task.init[n][0] in layout.REGIONS]
+    for i, a in enumerate(on_table):
+        for b in on_table[i + 1 :]:
+            dist = np.hypot(poses_a[a][0] - poses_a[b][0], poses_a[a][1] - poses_a[b][1])
+            assert dist >= layout.spacing_radius(a) + layout.spacing_radius(b) + CLEARANCE - 1e-9
+    parked = [n for n in layout.MOVABLES if n not in task.init]
+    x0, x1, y0, y1 = layout.WORK_AREA
+    assert all(not (x0 < poses_a[n][0] < x1 and y0 < poses_a[n][1] < y1) for n in parked)
