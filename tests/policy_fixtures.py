@@ -76,7 +76,9 @@ def training_batch(config: SkillRetConfig, repo_id: str, root: Path, size: int =
 def batch_at(config: SkillRetConfig, repo_id: str, root: Path, indices: list[int]) -> dict:
     """The lerobot-train batch of the given global frame indices (to place windows across episode ends)."""
     fps = LeRobotDatasetMetadata(repo_id, root=root).fps
-    deltas = {key: [i / fps for i in config.observation_delta_indices] for key in config.input_features}
-    deltas["action"] = [i / fps for i in config.action_delta_indices]
+    deltas = None
+    if config.observation_delta_indices is not None:  # None with `fast_windows`: single frames
+        deltas = {key: [i / fps for i in config.observation_delta_indices] for key in config.input_features}
+        deltas["action"] = [i / fps for i in config.action_delta_indices]
     dataset = LeRobotDataset(repo_id, root=root, delta_timestamps=deltas)
     return torch.utils.data.default_collate([dataset[i] for i in indices])

@@ -160,6 +160,7 @@ def test_two_stages_with_lerobot_train_then_lerobot_eval(tmp_path, monkeypatch):
         f"--policy.prior_repo_id={PRIOR_REPO}",
         f"--policy.prior_root={prior}",
         f"--policy.retrieval_path={retrieval}",
+        "--policy.fast_windows=false",  # stage 1 used cpu.json's fast windows; this covers LeRobot's own windows
     )
     stage2 = tmp_path / "stage2" / "checkpoints" / "last" / "pretrained_model"
     saved = json.loads((stage2 / "config.json").read_text())

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from policy_fixtures import (
     PRIOR_REPO,
@@ -373,3 +374,26 @@ def test_implementation_only_extras_add_their_terms(prior_root):
             training_batch(config, PRIOR_REPO, prior_root)
         )[1]
     )
+
+
+@pytest.mark.parametrize("stage", ["skills", "policy"])
+def test_fast_windows_equal_lerobots_windows(prior_root, stage):
+    """`fast_windows`: LeRobot loads anchor frames only; the windows the policy gathers by `index` are the ones
+    LeRobot's delta_timestamps would have built (values and pad masks), so the losses see the same data."""
+    indices = [0, 3, 37, 38, 70, 110]  # episode starts and ends included: both kinds of padding
+    fast = build_policy(tiny_config(stage=stage, fast_windows=True, use_retrieval=False), PRIOR_REPO, prior_root)
+    assert fast.config.observation_delta_indices is None and fast.config.action_delta_indices is None
+    frames = batch_at(fast.config, PRIOR_REPO, prior_root, indices)
+    assert frames["observation.state"].ndim == 2
+    gathered = fast._data().own.gather(frames["index"], "cpu")
+    standard = build_policy(tiny_config(stage=stage), PRIOR_REPO, prior_root).config
+    reference = batch_at(standard, PRIOR_REPO, prior_root, indices)
+    for key in ("observation.state", "observation.environment_state", "action", "action_is_pad"):
+        assert torch.equal(gathered[key], reference[key]), key
+    loss, info = fast.forward(frames)
+    assert torch.isfinite(loss) and info
+    with pytest.raises(ValueError, match="fast_windows"):
+        config = tiny_config(fast_windows=True)
+        config.input_features = {"observation.images.cam": PolicyFeature(FeatureType.VISUAL, (3, 8, 8))}
+        config.output_features = {"action": PolicyFeature(FeatureType.ACTION, (7,))}
+        config.validate_features()

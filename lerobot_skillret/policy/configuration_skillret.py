@@ -85,6 +85,8 @@ class SkillRetConfig(PreTrainedConfig):
     finetune_skills: bool = True  # keep training the skill model in stage 2 (Alg. 2, line 17)
     retrieved_latents: str = "stored"  # labels z' of retrieved windows: "stored" in the retrieval file (paper,
     # Alg. 2 line 7) or "reencode" with the current, fine-tuned encoder (public implementation)
+    fast_windows: bool = False  # low-dim only: lerobot-train loads single frames and the policy gathers each
+    # window by `index` from the memory-mapped column cache (same windows and pads, ~1000x cheaper per window)
     skills_checkpoint_fingerprint: str | None = None  # set by stage 2 from --policy.path; checked against the
     # retrieval file, kept in config.json so resumed runs check the same stage-1 checkpoint
 
@@ -178,18 +180,21 @@ class SkillRetConfig(PreTrainedConfig):
     # --- LeRobot contract -------------------------------------------------------------------------------------
 
     @property
-    def observation_delta_indices(self) -> list[int]:
+    def observation_delta_indices(self) -> list[int] | None:
         """Stage `policy`: the F observations up to the anchor, then the window's H (the decoder needs o_t).
 
         Stage `skills` needs no history (Algorithm 1 only sees the window), so it loads only the H window steps:
         with cameras that halves the frames decoded per sample. The policy accepts either layout.
+        With `fast_windows` LeRobot loads the anchor frame only (None) and the policy gathers the window itself.
         """
+        if self.fast_windows:
+            return None
         start = 0 if self.stage == "skills" else -(self.history - 1)
         return list(range(start, self.horizon))
 
     @property
-    def action_delta_indices(self) -> list[int]:
-        return list(range(self.horizon))
+    def action_delta_indices(self) -> list[int] | None:
+        return None if self.fast_windows else list(range(self.horizon))
 
     @property
     def reward_delta_indices(self) -> None:
@@ -209,6 +214,11 @@ class SkillRetConfig(PreTrainedConfig):
             raise ValueError(
                 f"skillret needs a flat action vector; the dataset's `action` has shape "
                 f"{tuple(self.action_feature.shape)}."
+            )
+        if self.fast_windows and self.image_features:
+            raise ValueError(
+                f"`fast_windows`=True gathers windows from the low-dim column cache, which holds no camera frames, "
+                f"but the inputs include cameras {sorted(self.image_features)}. Set --policy.fast_windows=false."
             )
         if not (self.robot_state_feature or self.env_state_feature or self.image_features):
             raise ValueError(

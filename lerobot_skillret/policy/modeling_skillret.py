@@ -143,6 +143,8 @@ class SkillRetPolicy(PreTrainedPolicy):
         """One training step's loss and its terms (Python floats), for the configured stage."""
         self.normalizer.check_ready()
         data = self._data()
+        if self.config.fast_windows:  # LeRobot gave anchor frames only: gather their windows (same pads)
+            batch = data.own.gather(batch["index"].reshape(-1), self._device())
         if self.config.stage == "skills":
             loss, terms, _ = self._skill_loss([(batch, data.own)])
             return loss, {name: float(value) for name, value in terms.items()}

@@ -54,7 +54,9 @@ class TrainingData:
             )
         repo_id, root = policy.dataset_location
         keys = (policy.low_dim_keys, policy.image_keys)
-        own = WindowSource(repo_id, root, *keys, history=1, horizon=config.horizon)
+        # the training dataset's own windows are only needed whole (history included) with `fast_windows`
+        history = config.history if config.fast_windows and config.stage == "policy" else 1
+        own = WindowSource(repo_id, root, *keys, history=history, horizon=config.horizon)
         if config.stage == "skills":
             return cls(own=own)
 
