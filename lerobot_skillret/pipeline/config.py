@@ -34,6 +34,7 @@ class DataSpec:
 class TrainSpec:
     """One `lerobot-train` run: its length, checkpoints and extra command-line options."""
 
+    config_path: str | None = None  # a full lerobot-train config file (e.g. configs/policy/cpu.json)
     steps: int = 1000
     batch_size: int = 16
     save_freq: int = 500  # checkpoints evaluated by the protocol are every `save_freq` steps and the last one
@@ -66,6 +67,7 @@ class PipelineConfig:
     seeds: list[int] = field(default_factory=lambda: [0])
     methods: list[str] = field(default_factory=lambda: ["skillret"])
     results_dir: str | None = None  # where finished cells' raw eval JSONs are copied (e.g. benchmarks/results)
+    threads: int | None = None  # OMP_NUM_THREADS of every stage (1 avoids oversubscription on a shared machine)
     data: DataSpec = field(default_factory=DataSpec)
     skills: TrainSpec = field(default_factory=TrainSpec)  # stage 1 (shared by tasks; one per seed)
     policy: TrainSpec = field(default_factory=TrainSpec)  # stage 2 (one per method, task and seed)

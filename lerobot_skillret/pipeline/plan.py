@@ -79,7 +79,8 @@ class Plan:
 
     def data_stages(self) -> list[Stage]:
         d = self.cfg.data
-        common = ["--seed", str(d.seed), "--workers", str(d.workers), *(["--cameras"] if d.cameras else [])]
+        cameras = ["--cameras", "agentview", "eye_in_hand"] if d.cameras else []
+        common = ["--seed", str(d.seed), "--workers", str(d.workers), *cameras]
         play = Stage("data/play", self.play_root())
         play.command = [
             str(BIN / "skillret-generate"),
@@ -134,6 +135,7 @@ class Plan:
             "--eval_freq=0",
             "--wandb.enable=false",
             "--policy.push_to_hub=false",
+            *([f"--config_path={Path(spec.config_path).resolve()}"] if spec.config_path else []),
             *cli_args(spec.args),
         ]
         return stage
@@ -253,6 +255,7 @@ class Plan:
         if e.episode_length is not None:
             options["env.episode_length"] = e.episode_length
         stage.command = [str(BIN / "lerobot-eval"), *cli_args(options)]
+        stage.after = lambda partial: _repoint(partial / "eval_info.json", partial, out)
         return stage
 
     def cell_path(self, cell: Cell) -> Path:
@@ -260,3 +263,8 @@ class Plan:
 
     def cells(self) -> list[Cell]:
         return [Cell(m, t, s) for s in self.cfg.seeds for t in self.cfg.tasks for m in self.cfg.methods]
+
+
+def _repoint(path: Path, old: Path, new: Path) -> None:
+    """lerobot-eval records its video paths under the partial folder; point them at the published one."""
+    path.write_text(path.read_text().replace(str(old), str(new)))

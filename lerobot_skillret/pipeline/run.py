@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import time
 from pathlib import Path
 
@@ -57,7 +58,11 @@ def run_cell(plan: Plan, runner: StageRunner, cell: Cell, results_dir: Path | No
 def run(cfg: PipelineConfig) -> Path:
     """Run (or continue) every stage of `cfg`; return the markdown table's path."""
     plan = Plan(cfg)
-    runner = StageRunner(plan.root)
+    runner = StageRunner(
+        plan.root,
+        env={"HF_HUB_OFFLINE": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+        | ({"OMP_NUM_THREADS": str(cfg.threads)} if cfg.threads else {}),
+    )
     results_dir = Path(cfg.results_dir).resolve() if cfg.results_dir else None
     start = time.monotonic()
     for stage in plan.data_stages():
@@ -88,6 +93,16 @@ def collect_cells(plan: Plan) -> dict[tuple[str, str], list[dict]]:
     return cells
 
 
+def _log_to_stderr() -> None:
+    """Our own handler: imported libraries may already have configured the root logger (basicConfig is a no-op)."""
+    if not log.handlers:
+        handler = logging.StreamHandler()
+        handler.setFormatter(logging.Formatter("%(asctime)s %(message)s", datefmt="%H:%M:%S"))
+        log.addHandler(handler)
+    log.setLevel(logging.INFO)
+    log.propagate = False
+
+
 def parse_overrides(items: list[str]) -> dict[str, object]:
     out = {}
     for item in items:
@@ -114,7 +129,7 @@ def main(argv: list[str] | None = None) -> None:
         help="folder holding <method>/<task>/seed<s>/cell.json (default: benchmarks/results)",
     )
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", datefmt="%H:%M:%S")
+    _log_to_stderr()
     if args.command == "run":
         run(PipelineConfig.from_yaml(args.config, parse_overrides(args.overrides)))
     else:
