@@ -142,6 +142,11 @@ class SkillRetPolicy(PreTrainedPolicy):
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
         """One training step's loss and its terms (Python floats), for the configured stage."""
         self.normalizer.check_ready()
+        if "index" not in batch:
+            raise KeyError(
+                "skillret training batches need `index` (each window's global frame index, as LeRobotDataset "
+                "gives it): the temporal pair of every window is located from it."
+            )
         data = self._data()
         if self.config.fast_windows:  # LeRobot gave anchor frames only: gather their windows (same pads)
             batch = data.own.gather(batch["index"].reshape(-1), self._device())
