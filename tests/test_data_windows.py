@@ -19,7 +19,7 @@ from scipy import stats
 from synthetic import IMAGE_KEY, make_synthetic_dataset, synthetic_features
 
 from lerobot_skillret.data import windows
-from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
+from lerobot_skillret.data.windows import EpisodeColumns, FrameReader, WindowSampler
 
 REPO = "test/synthetic"
 OBS_KEYS = ["observation.state", "observation.environment_state"]
@@ -243,3 +243,66 @@ def test_sampler_argument_errors(columns):
         sampler.gather(torch.tensor([len(columns)]))
     with pytest.raises(ValueError, match="max_offset"):
         sampler.sample_pair_anchors(torch.tensor([0]), -1)
+
+
+VIDEO_KEY = "observation.images.wrist"
+
+
+def _make_video_dataset(root: Path, lengths: list[int]) -> Path:
+    """A tiny dataset with one VIDEO camera (the synthetic datasets store images), including a 1-frame episode."""
+    features = {
+        "observation.state": {"dtype": "float32", "shape": (3,), "names": None},
+        "action": {"dtype": "float32", "shape": (2,), "names": None},
+        VIDEO_KEY: {"dtype": "video", "shape": (32, 32, 3), "names": ["height", "width", "channels"]},
+    }
+    dataset = LeRobotDataset.create("test/video", 20, features, root=root, use_videos=True)
+    rng = np.random.default_rng(0)
+    for length in lengths:
+        for _ in range(length):
+            dataset.add_frame(
+                {
+                    "observation.state": rng.normal(size=3).astype(np.float32),
+                    "action": rng.normal(size=2).astype(np.float32),
+                    VIDEO_KEY: rng.integers(0, 256, (32, 32, 3), dtype=np.uint8),
+                    "task": "video task",
+                }
+            )
+        dataset.save_episode()
+    dataset.finalize()
+    return root
+
+
+@pytest.mark.parametrize("kind", ["image", "video"])
+def test_camera_windows_equal_lerobot_getitem(tmp_path, kind):
+    history, horizon = 3, 4
+    if kind == "image":
+        repo, key = REPO, IMAGE_KEY
+        root = make_synthetic_dataset(tmp_path / "img", num_episodes=3, min_len=2, max_len=12, with_images=True)
+    else:
+        repo, key = "test/video", VIDEO_KEY
+        root = _make_video_dataset(tmp_path / "vid", [7, 1, 9])
+    columns = EpisodeColumns.from_dataset(repo, root)
+    backend = "pyav"  # torchcodec, LeRobot's default, needs system FFmpeg libraries this machine may lack
+    sampler = WindowSampler(columns, history, horizon, frames=FrameReader(repo, root, video_backend=backend))
+    anchors = torch.arange(len(columns)).flip(0)  # every frame, out of order: results must follow the anchors
+    batch = sampler.gather(anchors)
+    assert batch[key].shape[:2] == (len(columns), history + horizon - 1) and batch[key].dtype == torch.float32
+    assert batch[f"{key}_is_pad"].any()
+    fps = columns.fps
+    deltas = [d / fps for d in range(-(history - 1), horizon)]
+    ds = LeRobotDataset(repo, root=root, delta_timestamps={key: deltas}, video_backend=backend)
+    for row, anchor in enumerate(anchors.tolist()):
+        item = ds[anchor]
+        assert torch.equal(batch[key][row], item[key]), (key, anchor)
+        assert torch.equal(batch[f"{key}_is_pad"][row], item[f"{key}_is_pad"]), (key, anchor)
+        assert torch.equal(batch["observation.state"][row, history - 1], item["observation.state"])
+
+
+def test_frame_reader_errors(dataset_root, columns, tmp_path):
+    with pytest.raises(KeyError, match="camera feature"):
+        FrameReader(REPO, dataset_root)  # low-dim only dataset: no cameras at all
+    image_root = make_synthetic_dataset(tmp_path / "img", num_episodes=1, min_len=5, max_len=5, with_images=True)
+    with pytest.raises(KeyError, match=r"observation\.images\.missing"):
+        FrameReader(REPO, image_root, keys=["observation.images.missing"])
+    with pytest.raises(ValueError, match="same dataset"):
+        WindowSampler(columns, 2, 3, frames=FrameReader(REPO, image_root))
