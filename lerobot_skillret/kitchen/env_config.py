@@ -46,5 +46,5 @@ class PandaKitchenEnv(EnvConfig):
         return {
             "cameras": tuple(self.cameras),
             "image_size": self.image_size,
-            "max_episode_steps": self.episode_length,
+            "episode_length": self.episode_length,
         }

@@ -29,7 +29,7 @@ class KitchenEnv(gym.Env):
         task: str = "breakfast",
         cameras: tuple[str, ...] | list[str] = (),
         image_size: int = O.DEFAULT_IMAGE_SIZE,
-        max_episode_steps: int | None = None,
+        episode_length: int | None = None,
         render_mode: str = "rgb_array",
     ):
         self._task = get_task(task)
@@ -38,7 +38,7 @@ class KitchenEnv(gym.Env):
         self.cameras = O.check_cameras(cameras)
         self.image_size = image_size
         self.render_mode = render_mode
-        self._max_episode_steps = int(max_episode_steps or self._task.max_steps)
+        self._max_episode_steps = int(episode_length or self._task.max_steps)
         self.scene = KitchenScene()
         self._cam = CameraRenderer(self.scene, image_size) if self.cameras else None
         self._viewer: CameraRenderer | None = None

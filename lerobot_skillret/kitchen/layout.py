@@ -70,8 +70,8 @@ ITEMS: dict[str, ItemSpec] = {
     "bread": ItemSpec((0.035, 0.022, 0.015), 0.045),
     "butter": ItemSpec((0.022, 0.016, 0.012), 0.035),
     "milk": ItemSpec((0.02, 0.02, 0.035), 0.035),
-    "fish": ItemSpec((0.024, 0.014, 0.01), 0.035),
-    "sausage": ItemSpec((0.024, 0.011, 0.011), 0.035),
+    "fish": ItemSpec((0.024, 0.014, 0.014), 0.035),
+    "sausage": ItemSpec((0.024, 0.012, 0.013), 0.035),
     "tomato": ItemSpec((0.018, 0.018, 0.015), 0.03),
     "block_red": ItemSpec((0.02, 0.02, 0.02), 0.035),
     "block_green": ItemSpec((0.02, 0.02, 0.02), 0.035),
@@ -86,7 +86,7 @@ MOVABLES: tuple[str, ...] = (*ITEMS, *VESSELS)
 # Rectangular table regions (x0, x1, y0, y1) for sampling positions of object centres.
 REGIONS: dict[str, tuple[float, float, float, float]] = {
     "front_left": (-0.22, -0.08, 0.17, 0.30),
-    "center": (-0.05, 0.08, -0.07, 0.07),
+    "center": (-0.05, 0.08, -0.07, 0.045),  # y <= 0.045: open fingers would touch the stove
     "pan_table": (-0.15, -0.13, 0.21, 0.25),  # pan on the table, clear of the stove, handle reachable
 }
 # Where items go when they are placed "on the table" (free spots are sampled in these regions).

@@ -118,7 +118,7 @@ def _grasp_point(scene, obj: str) -> np.ndarray:
 
 def place_target(scene, obj: str, region: str, rng: np.random.Generator) -> np.ndarray:
     """Resting position of `obj`'s centre when placed in `region` (a free slot / spot where there are several)."""
-    others = [n for n in layout.MOVABLES if n != obj]
+    others = [n for n in layout.MOVABLES if n not in (obj, region)]
     if region == "plate":
         x, y = layout.FIXTURES["serving"]
         return np.array([x, y, layout.item_rest_z(obj, layout.TABLE_Z + 0.01)])
@@ -183,8 +183,11 @@ def _release(d: Driver, eef_target: np.ndarray) -> None:
     d.move([eef_target[0], eef_target[1], SAFE_Z], tol=0.015)
     d.move(eef_target + np.array([0, 0, 0.04]), tol=0.01, jitter=False)
     d.move(eef_target, tol=0.006, max_steps=30, jitter=False)
-    d.hold(8, grip=OPEN)
+    # Open the fingers only part way (the gripper command integrates): less to bump in pans and drawers.
+    d.hold(6, grip=OPEN)
+    d.hold(4, grip=0.0)
     d.lift()
+    d.grip = OPEN
 
 
 def pick_place(d: Driver, obj: str, region: str) -> bool:
@@ -241,8 +244,9 @@ def toggle(d: Driver, switch: str, state: str) -> bool:
     for _ in range(1 + RETRIES):
         knob_x = bx + scene.joint(P.SWITCH_JOINTS[switch])
         start = np.array([knob_x - sign * 0.045, by, z])
+        d.lift()  # never close the fingers near whatever the last primitive touched
         d.grip = CLOSED
-        d.move([start[0], start[1], z + 0.08], tol=0.015)
+        d.move([start[0], start[1], SAFE_Z], tol=0.015)
         d.move(start, tol=0.008, max_steps=40, jitter=False)
         d.move([bx + sign * (layout.SWITCH_RANGE[1] - 0.022 + 0.025), by, z], tol=0.008, max_steps=40, jitter=False)
         d.move(d.scene.eef_pos() - np.array([sign * 0.02, 0, 0]), tol=0.008, max_steps=15, jitter=False)

@@ -29,10 +29,11 @@ class CameraRenderer:
             self.renderer.scene.flags[flag] = False
 
     def render(self, camera: str) -> np.ndarray:
-        """(size, size, 3) uint8 image from `camera` ("agentview" or "eye_in_hand")."""
-        if camera not in _CAMERA_IDS:
-            raise ValueError(f"unknown camera {camera!r}; choose from {CAMERAS}")
-        self.renderer.update_scene(self.scene.sim.data._data, camera=_CAMERA_IDS[camera])
+        """(size, size, 3) uint8 image from `camera` ("agentview", "eye_in_hand" or any MJCF camera name)."""
+        name = _CAMERA_IDS.get(camera, camera)
+        if mujoco.mj_name2id(self.scene.sim.model._model, mujoco.mjtObj.mjOBJ_CAMERA, name) < 0:
+            raise ValueError(f"unknown camera {camera!r}; the observation cameras are {CAMERAS}")
+        self.renderer.update_scene(self.scene.sim.data._data, camera=name)
         for flag in (
             mujoco.mjtRndFlag.mjRND_SHADOW,
             mujoco.mjtRndFlag.mjRND_REFLECTION,
