@@ -89,6 +89,10 @@ class KitchenScene(ManipulationEnv):
             lift = layout.DRAWER_LIFT if key == "drawer" else 0.0
             body.set("pos", array_to_string([x, y, layout.TABLE_Z + lift]))
             arena.worldbody.append(body)
+        # A close overview camera for pictures and videos of the work area.
+        ET.SubElement(
+            arena.worldbody, "camera", name="overview", mode="targetbody", target="serving", pos="0.55 0 1.85"
+        )
         for fname in ("items.xml", "vessels.xml"):
             for body in _load_asset(fname, "").find("./worldbody"):
                 arena.worldbody.append(body)
