@@ -66,8 +66,10 @@ def make_policy(fields: dict, root: Path, repo_id: str, **overrides) -> SkillRet
 
 def batches(policy: SkillRetPolicy, root: Path, repo_id: str, batch_size: int, count: int) -> list[dict]:
     config, fps = policy.config, LeRobotDatasetMetadata(repo_id, root=root).fps
-    deltas = {k: [i / fps for i in config.observation_delta_indices] for k in config.input_features}
-    deltas["action"] = [i / fps for i in config.action_delta_indices]
+    deltas = None  # `fast_windows`: anchor frames only; the policy gathers the windows (timed in its forward)
+    if config.observation_delta_indices is not None:
+        deltas = {k: [i / fps for i in config.observation_delta_indices] for k in config.input_features}
+        deltas["action"] = [i / fps for i in config.action_delta_indices]
     loader = torch.utils.data.DataLoader(
         LeRobotDataset(repo_id, root=root, delta_timestamps=deltas), batch_size=batch_size, shuffle=True
     )

@@ -135,7 +135,7 @@ class SkillRetPolicy(PreTrainedPolicy):
         return self._observations(raw, slice(0, history))
 
     def _device(self) -> torch.device:
-        return next(self.skills.parameters()).device
+        return self.normalizer.device_marker.device
 
     # --- training ---------------------------------------------------------------------------------------------
 

@@ -34,6 +34,7 @@ class SkillNormalizer(nn.Module):
         stats: Mapping[str, Mapping[str, object]] | None = None,
     ) -> None:
         super().__init__()
+        self.register_buffer("device_marker", torch.empty(0), persistent=False)  # the policy's device, cheaply
         self.modes: dict[str, NormalizationMode] = {}
         for key, feature in features.items():
             mode = NormalizationMode(mapping.get(feature.type.value, NormalizationMode.IDENTITY))
