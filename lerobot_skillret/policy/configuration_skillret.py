@@ -1,7 +1,8 @@
 """Configuration of the `skillret` policy: skill VAE + retrieval + latent policy.
 
-Defaults are the paper's (Table 7 of the seed appendix; GPU-scale). `configs/cpu/` holds a configuration small
-enough for a 2-core CPU. Batch size (16 in the paper) and step counts are `lerobot-train` options, not policy ones.
+Defaults are the paper's (Table 7 of the seed appendix; GPU-scale, as in `configs/policy/paper.json`);
+`configs/policy/cpu.json` holds one small enough for a 2-core CPU. Batch size (16 in the paper) and step counts are
+`lerobot-train` options, not policy ones.
 """
 
 from __future__ import annotations
