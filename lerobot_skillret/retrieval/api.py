@@ -255,10 +255,16 @@ def _finish(
 def primitive_names(root: str | Path) -> list[str] | None:
     """Names of the `primitive_index` labels, if the dataset states them.
 
-    Looked up in `meta/info.json` under features.primitive_index.names (a list of names, one per label value)
-    or in `meta/primitives.json` (a JSON list). None when absent: reports then say "primitive <i>".
+    Looked up in `meta/kitchen.json` (`primitive_names`, written by `skillret-generate play`), in
+    `meta/primitives.json` (a JSON list) or in `meta/info.json` under features.primitive_index.names (a list of
+    names, one per label value). None when absent: reports then say "primitive <i>".
     """
     meta = Path(root) / "meta"
+    kitchen = meta / "kitchen.json"
+    if kitchen.is_file():
+        names = json.loads(kitchen.read_text()).get("primitive_names")
+        if isinstance(names, list):
+            return [str(n) for n in names]
     extra = meta / "primitives.json"
     if extra.is_file():
         names = json.loads(extra.read_text())
