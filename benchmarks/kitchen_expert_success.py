@@ -1,7 +1,9 @@
-"""Scripted-expert success per kitchen task over many seeded attempts (the >= 95% goal).
+"""Scripted-expert success per kitchen task over many seeded attempts (the >= 95% goal), and replay parity.
 
     python benchmarks/kitchen_expert_success.py --attempts 50 --workers 2 [--tasks breakfast cook]
-Prints, per task, successes / attempts, mean episode length and the goals left unmet by failed attempts.
+Prints, per task, successes / attempts, mean episode length and the goals left unmet by failed attempts, and
+the share of successful attempts that succeed again when their recorded float32 actions are replayed from the
+saved initial MuJoCo state (exactly what a dataset stores).
 """
 
 from __future__ import annotations
@@ -17,10 +19,11 @@ from lerobot_skillret.kitchen.tasks import TASKS
 _SCENE = {}
 
 
-def attempt(job: tuple[str, int]) -> tuple[str, int, bool, int, list[str]]:
+def attempt(job: tuple[str, int]) -> tuple[str, int, bool, int, list[str], bool]:
     from lerobot_skillret.kitchen.collect import DEMO_ACTION_NOISE, DEMO_JITTER
     from lerobot_skillret.kitchen.expert import reset_scene, run_expert
     from lerobot_skillret.kitchen.primitives import Driver
+    from lerobot_skillret.kitchen.replay import replay_actions
     from lerobot_skillret.kitchen.scene import KitchenScene
 
     name, seed = job
@@ -30,9 +33,14 @@ def attempt(job: tuple[str, int]) -> tuple[str, int, bool, int, list[str]]:
     task = TASKS[name]
     rng = np.random.default_rng(seed)
     reset_scene(scene, task, rng)
-    driver = Driver(scene, rng, DEMO_ACTION_NOISE, DEMO_JITTER, budget=task.max_steps)
+    initial, actions = scene.get_sim_state(), []
+    driver = Driver(
+        scene, rng, DEMO_ACTION_NOISE, DEMO_JITTER, budget=task.max_steps, on_step=lambda a, _: actions.append(a)
+    )
     ok = run_expert(driver, task)
-    return name, seed, ok, driver.steps, [] if ok else task.unmet(scene)
+    unmet = [] if ok else task.unmet(scene)
+    replayed = ok and replay_actions(scene, initial, actions, task)
+    return name, seed, ok, driver.steps, unmet, replayed
 
 
 def main() -> None:
@@ -50,10 +58,11 @@ def main() -> None:
         wins = sum(r[2] for r in rows)
         unmet = Counter(g for r in rows for g in r[4])
         failed_seeds = [r[1] for r in rows if not r[2]]
+        replayed = sum(r[5] for r in rows)
         print(
             f"{t:12s} success {wins}/{len(rows)} = {100 * wins / len(rows):.1f}%  "
             f"mean steps {np.mean([r[3] for r in rows]):.0f}  max {max(r[3] for r in rows)} / {TASKS[t].max_steps}"
-            f"  unmet {dict(unmet)}  failed seeds {failed_seeds}"
+            f"  replay parity {replayed}/{wins}  unmet {dict(unmet)}  failed seeds {failed_seeds}"
         )
 
 

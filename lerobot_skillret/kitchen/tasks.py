@@ -98,7 +98,7 @@ TASKS: dict[str, Task] = {
             goals=(P.switch_on("light"), *(P.on_table(b) for b in layout.BLOCKS)),
             init={B1: ("drawer",), B2: ("shelf",), B3: ("shelf",)},
             shuffle=layout.BLOCKS,
-            max_steps=800,
+            max_steps=900,
             plan=(
                 Step("toggle", ("light", "on")),
                 Step("open_drawer"),
