@@ -42,12 +42,14 @@ def test_selection_equals_float64_brute_force(metric, chunk_size):
     prior_mean, prior_log_var = random_latents(1500, 12, generator)
     target_mean, target_log_var = random_latents(90, 12, generator, offset=0.3)
     engine = NearestTarget(target_mean, target_log_var if metric == "kl" else None, metric=metric)
-    scores = engine.score(prior_mean, prior_log_var if metric == "kl" else None, chunk_size=chunk_size)
+    scores = engine.score(
+        prior_mean, prior_log_var if metric == "kl" else None, chunk_size=chunk_size, with_nearest=True
+    )
     ref_values, ref_nearest = brute_force(prior_mean, target_mean, metric, prior_log_var, target_log_var)
 
     error = (scores.value - ref_values).abs()
     assert torch.all(error <= scores.margin), "the per-row error bound must hold"
-    torch.testing.assert_close(scores.value, ref_values, rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(scores.value.double(), ref_values, rtol=1e-4, atol=1e-4)
     assert (scores.nearest == ref_nearest).float().mean() > 0.99
 
     for fraction in (0.02, 0.1, 0.5, 0.9, 1.0):
@@ -86,9 +88,10 @@ def test_kth_neighbour_and_exclusion(metric):
     target_mean, target_log_var = random_latents(30, 6, generator)
     log_vars = (prior_log_var, target_log_var) if metric == "kl" else (None, None)
     engine = NearestTarget(target_mean, log_vars[1], metric=metric, neighbors=3)
-    scores = engine.score(prior_mean, log_vars[0], chunk_size=50)
+    scores = engine.score(prior_mean, log_vars[0], chunk_size=50, with_nearest=True)
+    assert engine.score(prior_mean, log_vars[0]).nearest is None
     ref_values, ref_nearest = brute_force(prior_mean, target_mean, metric, prior_log_var, target_log_var, 3)
-    torch.testing.assert_close(scores.value, ref_values, rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(scores.value.double(), ref_values, rtol=1e-4, atol=1e-4)
     assert torch.equal(scores.nearest, ref_nearest)
 
     # A prior row that IS target column j must not match itself when j is excluded.
@@ -96,11 +99,11 @@ def test_kth_neighbour_and_exclusion(metric):
     exclude = torch.tensor([0, 1, 2, 3, 4] + [-1] * 20)
     log_var_copies = torch.cat([target_log_var[:5], prior_log_var[:20]]) if metric == "kl" else None
     nearest_one = NearestTarget(target_mean, log_vars[1], metric=metric)
-    excluded = nearest_one.score(prior_with_copies, log_var_copies, chunk_size=4, exclude=exclude)
+    excluded = nearest_one.score(prior_with_copies, log_var_copies, chunk_size=4, exclude=exclude, with_nearest=True)
     assert torch.all(excluded.value[:5] > 1e-3)
     assert not torch.any(excluded.nearest[:5] == torch.arange(5))
     exact = nearest_one.exact(prior_with_copies, log_var_copies, torch.arange(25), exclude)
-    torch.testing.assert_close(exact, excluded.value, rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(exact, excluded.value.double(), rtol=1e-4, atol=1e-4)
 
 
 def test_bad_inputs_have_clear_errors():
@@ -117,9 +120,14 @@ def test_bad_inputs_have_clear_errors():
         NearestTarget(torch.randn(10))
     with pytest.raises(ValueError, match="neighbors=11"):
         NearestTarget(target, neighbors=11)
-    with pytest.raises(ValueError, match="prior latent means contain NaN"):
-        NearestTarget(target).score(torch.tensor([[float("nan")] * 8]))
-    with pytest.raises(ValueError, match="target latent log-variances contain NaN"):
+    for bad in (float("nan"), float("inf"), -float("inf")):
+        prior = torch.zeros(3, 8)
+        prior[1, 2] = bad
+        with pytest.raises(ValueError, match="prior latents contain NaN/inf"):
+            NearestTarget(target).score(prior)
+        with pytest.raises(ValueError, match="prior latents contain NaN/inf"):
+            NearestTarget(target, torch.zeros(10, 8), metric="kl").score(torch.zeros(3, 8), prior)
+    with pytest.raises(ValueError, match="target latents contain NaN/inf"):
         NearestTarget(target, torch.full((10, 8), float("inf")), metric="kl")
     with pytest.raises(ValueError, match="chunk_size"):
         NearestTarget(target).score(torch.randn(5, 8), chunk_size=0)

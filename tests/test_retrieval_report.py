@@ -19,7 +19,7 @@ def inputs_and_result():
     episode_start = torch.tensor([0, 0, 0, 0, 5, 5, 5, 5])
     distance = torch.tensor([0.1, 0.9, 0.2, 0.8, 0.7, 0.6, 0.3, 0.4], dtype=torch.float64)
     retrieved = torch.tensor([0, 2, 6, 7])
-    selection = Selection(distance=distance, nearest=torch.tensor([0, 1, 1, 0, 0, 1, 1, 1]), retrieved=retrieved)
+    selection = Selection(distance=distance, retrieved=retrieved, nearest=torch.tensor([0, 1, 1, 1]))
     primitive = torch.tensor([0, 0, 1, 1, 2, 2, 2, 0])
     inputs = ReportInputs(
         selection=selection,

@@ -31,6 +31,8 @@ def test_nearest_mode_is_the_exact_top_fraction():
     assert set(selection.retrieved.tolist()) == set(torch.sort(reference).indices[:200].tolist())
     torch.testing.assert_close(selection.distance, reference, rtol=1e-4, atol=1e-4)
     assert torch.all(torch.diff(selection.distance[selection.retrieved]) >= 0)
+    nearest = torch.cdist(prior.double(), target.double()).argmin(1)
+    assert torch.equal(selection.nearest, nearest[selection.retrieved])
     assert selection.cut == pytest.approx(float(torch.sort(reference).values[199]), rel=1e-6)
 
 
@@ -76,7 +78,8 @@ def test_suppression_and_quota_match_the_reference_greedy(radius, quota):
     settings = RetrievalSettings(fraction=0.2, nms_radius=radius, target_quota=quota).resolve()
     selection = select_windows(prior, target, settings, anchors=anchors, episode_start=start, episode_end=end)
     order = torch.sort(selection.distance, stable=True).indices
-    expected = reference_greedy(order, 120, anchors, start, selection.nearest, radius, quota)
+    nearest = torch.cdist(prior.double(), target.double()).argmin(1)
+    expected = reference_greedy(order, 120, anchors, start, nearest, radius, quota)
     assert sorted(selection.retrieved.tolist()) == sorted(expected)
     assert len(selection.retrieved) == min(120, len(expected))
     picked = selection.retrieved
@@ -85,7 +88,8 @@ def test_suppression_and_quota_match_the_reference_greedy(radius, quota):
         close = (anchors[picked][:, None] - anchors[picked][None, :]).abs() <= radius
         assert not torch.any(same_episode & close & ~torch.eye(len(picked), dtype=torch.bool))
     if quota is not None:
-        assert torch.bincount(selection.nearest[picked]).max() <= quota
+        assert torch.equal(selection.nearest, nearest[picked])
+        assert torch.bincount(selection.nearest).max() <= quota
 
 
 def test_suppression_keeps_the_count_when_it_can():

@@ -29,8 +29,8 @@ class Selection:
     """Scores of every candidate and which candidates are retrieved."""
 
     distance: Tensor  # [N] float64: L2 distance (or symmetric KL) of each candidate to its nearest target
-    nearest: Tensor  # [N] int64: index of that target latent
     retrieved: Tensor  # [K] int64: positions into the candidates, sorted by distance (ascending)
+    nearest: Tensor  # [K] int64: index of the target latent nearest to each retrieved window
     score: Tensor | None = None  # [N] float64: ranking score when it is not the distance (importance weighting)
 
     @property
@@ -59,10 +59,15 @@ def select_windows(
     settings.validate()
     log_vars = (prior_log_var, target_log_var) if settings.metric == "kl" else (None, None)
     engine = NearestTarget(target_mean, log_vars[1], metric=settings.metric, neighbors=settings.neighbors)
-    scores = engine.score(prior_mean, log_vars[0], chunk_size=settings.chunk_size, progress=progress)
     num = prior_mean.shape[0]
     count = retrieval_count(settings.fraction, num) if settings.mode != "none" else 0
-    distance = _distance(scores.value, settings.metric)
+    # Nearest-target indices cost ~30% of the pass: get them for all rows only when the quota needs them or most
+    # rows are retrieved anyway; otherwise only for the retrieved rows, afterwards.
+    with_nearest = settings.target_quota is not None or count > num // 4
+    scores = engine.score(
+        prior_mean, log_vars[0], chunk_size=settings.chunk_size, with_nearest=with_nearest, progress=progress
+    )
+    distance = _distance(scores.value.to(torch.float64), settings.metric)
     constrained = settings.nms_radius > 0 or settings.target_quota is not None
     bounds = {"anchors": anchors, "episode_start": episode_start, "episode_end": episode_end}
     options = {"nms_radius": settings.nms_radius, "target_quota": settings.target_quota, "nearest": scores.nearest}
@@ -80,7 +85,14 @@ def select_windows(
         retrieved, values = smallest(scores, count, exact)
         distance[retrieved] = _distance(values, settings.metric)  # float64-settled values near the cut
     retrieved = retrieved[torch.sort(distance[retrieved], stable=True).indices]
-    return Selection(distance=distance, nearest=scores.nearest, retrieved=retrieved, score=score)
+    if scores.nearest is not None:
+        nearest = scores.nearest[retrieved]
+    else:
+        log_var = None if log_vars[0] is None else log_vars[0][retrieved]
+        nearest = engine.score(
+            prior_mean[retrieved], log_var, chunk_size=settings.chunk_size, with_nearest=True
+        ).nearest
+    return Selection(distance=distance, retrieved=retrieved, nearest=nearest, score=score)
 
 
 def _distance(value: Tensor, metric: str) -> Tensor:

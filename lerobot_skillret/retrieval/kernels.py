@@ -39,23 +39,24 @@ _EXACT_SLICE = 1 << 16  # prior rows gathered at once by `exact`
 class Scores:
     """Per prior row: the metric value to its k-th nearest target, that target's index, and an error bound."""
 
-    value: Tensor  # [N] float64: squared L2 or symmetric KL to the k-th nearest target latent
-    nearest: Tensor  # [N] int64: index of the nearest target latent
-    margin: Tensor  # [N] float64: |value - exact value| <= margin (0-ish for a float64 run)
+    value: Tensor  # [N] (the run's dtype): squared L2 or symmetric KL to the k-th nearest target latent
+    nearest: Tensor | None  # [N] int64: index of the nearest target latent (only when asked: it costs ~30%)
+    margin: Tensor  # [N]: |value - exact value| <= margin (0-ish for a float64 run)
 
 
-def check_latents(mean: Tensor, log_var: Tensor | None, metric: str, name: str) -> None:
-    """Reject shapes and values the kernels would otherwise turn into silent nonsense."""
+def check_latents(mean: Tensor, log_var: Tensor | None, metric: str, name: str, check_finite: bool = True) -> None:
+    """Reject shapes and values the kernels would otherwise turn into silent nonsense.
+
+    `check_finite=False` skips the NaN/inf scan (the prior's is done on the scores instead: N values, not N x D).
+    """
     if metric not in METRICS:
         raise ValueError(f"Unknown retrieval metric {metric!r}: choose one of {METRICS}.")
     if mean.ndim != 2:
         raise ValueError(f"{name} latents must be a [num_windows, latent_dim] matrix; got {tuple(mean.shape)}.")
-    for values, what in ((mean, "means"), (log_var, "log-variances")):
-        if values is not None and not _all_finite(values):
-            raise ValueError(
-                f"The {name} latent {what} contain NaN/inf: the stage-1 checkpoint's encoder diverged or the "
-                f"{name} data has extreme values. Check the skills run's losses and the dataset."
-            )
+    if check_finite:
+        for values in (mean, log_var):
+            if values is not None and not bool(torch.isfinite(values).all()):
+                raise _non_finite(name)
     if metric == "kl":
         if log_var is None:
             raise ValueError(
@@ -93,9 +94,11 @@ def run_workers(work: Callable[[int, int], None], workers: int) -> None:
             future.result()
 
 
-def _all_finite(values: Tensor, rows: int = 1 << 16) -> bool:
-    """Chunked, so the check never allocates a mask the size of the whole prior."""
-    return all(bool(torch.isfinite(values[i : i + rows]).all()) for i in range(0, values.shape[0], rows))
+def _non_finite(name: str) -> ValueError:
+    return ValueError(
+        f"The {name} latents contain NaN/inf (or overflow the metric): the stage-1 checkpoint's encoder diverged "
+        f"or the {name} data has extreme values. Check the skills run's losses and the dataset."
+    )
 
 
 class NearestTarget:
@@ -134,7 +137,7 @@ class NearestTarget:
         return self.target_mean.shape[1]
 
     def _check_prior(self, prior_mean: Tensor, prior_log_var: Tensor | None) -> None:
-        check_latents(prior_mean, prior_log_var if self.metric == "kl" else None, self.metric, "prior")
+        check_latents(prior_mean, prior_log_var if self.metric == "kl" else None, self.metric, "prior", False)
         if prior_mean.shape[1] != self.latent_dim:
             raise ValueError(
                 f"Prior latents have dimension {prior_mean.shape[1]} but target latents {self.latent_dim}: both "
@@ -144,18 +147,18 @@ class NearestTarget:
     # --- features ---------------------------------------------------------------------------------------------
 
     def _prior_features(self, mean: Tensor, log_var: Tensor | None, center: Tensor, out: Tensor) -> Tensor:
-        """Write the features F of a chunk of prior rows into `out` [n, E] (its dtype); return a [n] (float64)."""
+        """Write the features F of a chunk of prior rows into `out` [n, E] and return a [n], both in out's dtype."""
         dim, dtype = self.latent_dim, out.dtype
         centered = out[:, :dim] if self.metric == "l2" else out[:, 3 * dim :]
         torch.sub(mean.to(dtype), center.to(dtype), out=centered)
         square = centered * centered
         if self.metric == "l2":
-            return square.sum(1).to(torch.float64)
+            return square.sum(1)
         log_var = log_var.to(dtype)
         inv = torch.exp(torch.neg(log_var), out=out[:, dim : 2 * dim])
         torch.add(torch.exp(log_var), square, out=out[:, :dim])
         torch.mul(centered, inv, out=out[:, 2 * dim : 3 * dim])
-        return 0.25 * (square * inv).sum(1).to(torch.float64)
+        return 0.25 * (square * inv).sum(1)
 
     def _target_features(self, center: Tensor) -> tuple[Tensor, Tensor]:
         """(G [M, E], b [M]) in float64; the KL scale 0.25 and its constant -D/2 are folded in here."""
@@ -177,9 +180,13 @@ class NearestTarget:
         chunk_size: int = 1024,
         dtype: torch.dtype = torch.float32,
         exclude: Tensor | None = None,
+        with_nearest: bool = False,
         progress: bool = False,
     ) -> Scores:
-        """Score every prior row; memory beyond the inputs is O(chunk_size * M), never O(N * M)."""
+        """Score every prior row; memory beyond the inputs is O(chunk_size * M), never O(N * M).
+
+        `with_nearest` also returns each row's nearest target index (a row minimum with its position is ~30%
+        slower than the plain minimum, so it is off unless an option needs it)."""
         with single_threaded() as threads:  # parallel over chunks instead (see `single_threaded`)
             self._check_prior(prior_mean, prior_log_var)
             if chunk_size < 1:
@@ -193,9 +200,9 @@ class NearestTarget:
             # Augmented target matrix [E + 1, M]: its last row meets a column of ones and adds b_j.
             target_aug = torch.cat([target_features, target_const[:, None]], dim=1).t().contiguous().to(dtype)
             chunk_size = min(chunk_size, max(num_prior, 1))
-            value = torch.empty(num_prior, dtype=torch.float64)
-            nearest = torch.empty(num_prior, dtype=torch.int64)
-            margin = torch.empty(num_prior, dtype=torch.float64)
+            value = torch.empty(num_prior, dtype=dtype)
+            nearest = torch.empty(num_prior, dtype=torch.int64) if with_nearest else None
+            margin = torch.empty(num_prior, dtype=dtype)
             # Error bound: gamma_n (sum_e |F_ie G_je| + |b_j|) <= gamma_n (||F_i|| max||G_j|| + max|b_j|), plus the
             # roundings of the inputs and of the final additions; doubled for safety.
             gamma = 2.0 * (width + 6) * _UNIT_ROUNDOFF[dtype]
@@ -223,15 +230,18 @@ class NearestTarget:
                     if exclude is not None:
                         hit = torch.nonzero(exclude[start:stop] >= 0).squeeze(1)
                         block[hit, exclude[start:stop][hit]] = float("inf")
-                    kth, nearest[start:stop] = self._kth_nearest(block)
-                    total = kth.to(torch.float64) + const
-                    value[start:stop] = total
-                    norm = const.sqrt() if self.metric == "l2" else rows[:, :width].norm(dim=1).to(torch.float64)
-                    margin[start:stop] = gamma * (norm * target_norm_max + target_const_max + const.abs() + total.abs())
+                    kth = self._kth_nearest(block, None if nearest is None else nearest[start:stop])
+                    total = torch.add(kth, const, out=value[start:stop])
+                    norm = const.sqrt() if self.metric == "l2" else rows[:, :width].norm(dim=1)
+                    bound = norm.mul_(target_norm_max).add_(target_const_max).add_(const.abs()).add_(total.abs())
+                    torch.mul(bound, gamma, out=margin[start:stop])
                     bar.update(1)
 
             run_workers(work, min(threads, bar.total or 1))
             bar.close()
+            # A NaN/inf in a prior latent makes its row's value NaN/inf (they propagate through the product).
+            if not bool(torch.isfinite(value).all()):
+                raise _non_finite("prior")
         return Scores(value=value, nearest=nearest, margin=margin)
 
     def exact(
@@ -250,12 +260,17 @@ class NearestTarget:
             out[start : start + len(part)] = scores.value
         return out
 
-    def _kth_nearest(self, block: Tensor) -> tuple[Tensor, Tensor]:
-        """Row-wise k-th smallest value and the column of the smallest."""
+    def _kth_nearest(self, block: Tensor, index_out: Tensor | None) -> Tensor:
+        """Row-wise k-th smallest value; with `index_out`, also writes the column of each row's smallest."""
         if self.neighbors == 1:
-            return torch.min(block, dim=1)
+            if index_out is None:
+                return torch.amin(block, dim=1)
+            values, index_out[:] = torch.min(block, dim=1)
+            return values
         values, index = torch.topk(block, self.neighbors, dim=1, largest=False, sorted=True)
-        return values[:, -1], index[:, 0]
+        if index_out is not None:
+            index_out[:] = index[:, 0]
+        return values[:, -1]
 
     def _center(self, prior_mean: Tensor, chunk_size: int) -> Tensor:
         """Mean of prior and target latents together (float64, one chunked pass over the prior, no copy)."""

@@ -112,7 +112,7 @@ def summarize(result: RetrievalResult, inputs: ReportInputs | None) -> dict[str,
         "candidates": float(distance.mean()) if distance.numel() else float("nan"),
         "retrieved": float(retrieved.mean()) if retrieved.numel() else float("nan"),
     }
-    summary["targets_used"] = int(torch.unique(selection.nearest[selection.retrieved]).numel())
+    summary["targets_used"] = int(torch.unique(selection.nearest).numel())
     if inputs.episode_start is not None:
         summary["redundancy"] = _redundancy(
             inputs.anchors[selection.retrieved], inputs.episode_start[selection.retrieved], settings.get("horizon", 1)

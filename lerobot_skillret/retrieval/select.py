@@ -34,11 +34,12 @@ def smallest(scores: Scores, count: int, exact: Callable[[Tensor], Tensor] | Non
     With `exact` (rows -> float64 values), the rows whose error margin straddles the cut are re-scored exactly,
     which makes the set the one a float64 computation would select (ties broken by row).
     """
-    value, num = scores.value.clone(), scores.value.shape[0]
+    value, num = scores.value.to(torch.float64, copy=True), scores.value.shape[0]
     if not 0 <= count <= num:
         raise ValueError(f"Cannot select {count} of {num} candidates.")
     if exact is not None and 0 < count < num:
-        low, high = value - scores.margin, value + scores.margin
+        margin = scores.margin.to(torch.float64)
+        low, high = value - margin, value + margin
         # Every value moved by at most its margin, so the exact count-th smallest lies in [cut_low, cut_high]:
         # rows entirely below cut_low are in, rows entirely above cut_high are out, the rest is re-scored.
         cut_low = torch.kthvalue(low, count).values
