@@ -161,7 +161,12 @@ def build_parser() -> argparse.ArgumentParser:
         prog="skillret-generate",
         description="Generate Panda kitchen data as a local LeRobotDataset v3.0: task-agnostic play (prior data) "
         "or scripted demonstrations of one task (target data).",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="examples:\n"
+        "  skillret-generate play --root data/kitchen_play --episodes 150 --steps-per-episode 2000\n"
+        "  skillret-generate demos --root data/demos_cook --task cook --episodes 30\n\n"
+        "output: a LeRobotDataset v3.0 at --root (data/, meta/, videos/ with --cameras) plus meta/kitchen.json\n"
+        "(primitive names for the primitive_index column, per-episode seed, success and initial MuJoCo state).",
     )
     sub = parser.add_subparsers(dest="kind", required=True)
     common = argparse.ArgumentParser(add_help=False)
@@ -172,7 +177,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--workers", type=int, default=2, help="simulation worker processes (0: simulate in this process)"
     )
     common.add_argument(
-        "--cameras", nargs="*", default=[], choices=O.CAMERAS, help="84x84 cameras to record (default: none)"
+        "--cameras",
+        nargs="*",
+        default=[],
+        choices=O.CAMERAS,
+        help="84x84 cameras to record as videos (none: state-only data)",
     )
     common.add_argument("--overwrite", action="store_true", help="replace an existing dataset at --root")
     play = sub.add_parser(
@@ -181,16 +190,18 @@ def build_parser() -> argparse.ArgumentParser:
         help="random primitives from randomised scenes (prior data)",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    play.add_argument("--episodes", type=int, default=DEFAULT_PLAY_EPISODES)
-    play.add_argument("--steps-per-episode", type=int, default=DEFAULT_PLAY_STEPS)
+    play.add_argument("--episodes", type=int, default=DEFAULT_PLAY_EPISODES, help="play episodes to write")
+    play.add_argument("--steps-per-episode", type=int, default=DEFAULT_PLAY_STEPS, help="frames per play episode")
     demos = sub.add_parser(
         "demos",
         parents=[common],
         help="successful scripted demos of one task (target data)",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    demos.add_argument("--task", required=True, choices=sorted(TASKS))
-    demos.add_argument("--episodes", type=int, default=DEFAULT_DEMOS)
+    demos.add_argument("--task", required=True, choices=sorted(TASKS), help="task to demonstrate")
+    demos.add_argument(
+        "--episodes", type=int, default=DEFAULT_DEMOS, help="successful demos to keep (failed attempts are dropped)"
+    )
     return parser
 
 

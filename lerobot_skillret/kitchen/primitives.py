@@ -14,6 +14,7 @@ import numpy as np
 
 from lerobot_skillret.kitchen import layout
 from lerobot_skillret.kitchen import predicates as P
+from lerobot_skillret.kitchen.sampling import free_spot
 
 # Primitive names; a frame's `primitive_index` indexes this tuple (stored with every dataset).
 PRIMITIVES = ("pick_place", "open_drawer", "close_drawer", "toggle", "move_vessel")
@@ -144,8 +145,6 @@ def place_target(scene, obj: str, region: str, rng: np.random.Generator) -> np.n
         )
         return np.array([slot[0], slot[1], layout.item_rest_z(obj, layout.SHELF_TOP_Z)])
     if region == "table":
-        from lerobot_skillret.kitchen.sampling import free_spot
-
         taken = [(*scene.body_pos(n)[:2], layout.spacing_radius(n)) for n in others]
         x, y = free_spot(rng, layout.TABLE_DROP_REGIONS, layout.spacing_radius(obj), taken)
         return np.array([x, y, layout.item_rest_z(obj)])
