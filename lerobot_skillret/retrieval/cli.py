@@ -109,7 +109,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = parser.add_argument_group("execution")
     run.add_argument("--batch-size", type=int, help="windows per encoder forward pass (default 512)")
-    run.add_argument("--chunk-size", type=int, help="prior rows per distance block (default 1024)")
+    run.add_argument(
+        "--chunk-size", type=int, help="prior rows per distance block (default 256: its [256, M] block stays in cache)"
+    )
     run.add_argument("--device", help="torch device for the encoder (default: the checkpoint's, if available)")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
     return parser

@@ -177,7 +177,7 @@ class NearestTarget:
         prior_mean: Tensor,
         prior_log_var: Tensor | None = None,
         *,
-        chunk_size: int = 1024,
+        chunk_size: int = 256,
         dtype: torch.dtype = torch.float32,
         exclude: Tensor | None = None,
         with_nearest: bool = False,
@@ -194,7 +194,7 @@ class NearestTarget:
             num_prior, num_target = prior_mean.shape[0], self.target_mean.shape[0]
             if exclude is not None and exclude.shape != (num_prior,):
                 raise ValueError(f"exclude needs one entry per prior row ({num_prior}); got {tuple(exclude.shape)}.")
-            center = self._center(prior_mean, chunk_size)
+            center = self._center(prior_mean)
             target_features, target_const = self._target_features(center)
             width = target_features.shape[1]
             # Augmented target matrix [E + 1, M]: its last row meets a column of ones and adds b_j.
@@ -272,9 +272,9 @@ class NearestTarget:
             index_out[:] = index[:, 0]
         return values[:, -1]
 
-    def _center(self, prior_mean: Tensor, chunk_size: int) -> Tensor:
+    def _center(self, prior_mean: Tensor, rows: int = 1 << 16) -> Tensor:
         """Mean of prior and target latents together (float64, one chunked pass over the prior, no copy)."""
         total = self.target_mean.sum(0)
-        for start in range(0, prior_mean.shape[0], chunk_size):
-            total = total + prior_mean[start : start + chunk_size].sum(0, dtype=torch.float64)
+        for start in range(0, prior_mean.shape[0], rows):
+            total = total + prior_mean[start : start + rows].sum(0, dtype=torch.float64)
         return total / (prior_mean.shape[0] + self.target_mean.shape[0])

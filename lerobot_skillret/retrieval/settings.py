@@ -54,7 +54,7 @@ class RetrievalSettings:
     importance: bool = False  # rank by target/prior density ratio (kNN distances) instead of raw distance
     exact: bool = True  # settle rows near the cut in float64 (set equals a float64 brute force)
     batch_size: int = 512  # windows per encoder forward pass
-    chunk_size: int = 1024  # prior rows per distance block (peak memory ~ chunk_size * M * 4 bytes)
+    chunk_size: int = 256  # prior rows per block: ~chunk_size * M * 4 bytes per worker (256: stays in cache)
 
     def resolve(self, config: Any | None = None) -> RetrievalSettings:
         """Fill unset values from a SkillRetConfig (or the paper's defaults without one), then validate."""
