@@ -186,3 +186,19 @@ def test_console_script(setup, tmp_path):
     assert "retrieved" in done.stderr and len(RetrievalResult.load(output)) > 0
     help_text = subprocess.run([str(script), "--help"], capture_output=True, text=True, check=True).stdout
     assert "--num-prior" in help_text and "appendix A.4" in help_text
+
+
+def test_cli_options_map_onto_settings():
+    from lerobot_skillret.retrieval.cli import build_parser, settings_from_args
+
+    def parse(*extra: str):
+        base = ["--checkpoint", "c", "--prior-root", "p", "--target-root", "t", "--output", "o"]
+        return settings_from_args(build_parser().parse_args([*base, *extra]))
+
+    assert parse() == RetrievalSettings()
+    assert parse("--ablation=random", "--seed=3") == RetrievalSettings(mode="random", seed=3)
+    assert parse("--ablation", "large", "--fraction", "0.05").num_prior == "all"
+    flags = parse("--importance", "--exact=false", "--num-prior", "250_000", "--nms-radius", "5", "--target-quota", "2")
+    assert (flags.importance, flags.exact, flags.num_prior, flags.nms_radius, flags.target_quota) == (
+        True, False, 250_000, 5, 2
+    )  # fmt: skip
