@@ -1,7 +1,7 @@
 """The ACT baseline trains through the pipeline's own stock `lerobot-train` command on low-dim data (no cameras).
 
-The options come from the pipeline config (`baselines.act` of configs/pipeline/smoke.yaml), so the test checks the
-options the pipeline really passes: they must be accepted by lerobot-train for ACT on state + environment-state
+The options come from the pipeline configs (`baselines.act` of configs/pipeline/smoke.yaml, else of benchmark.yaml),
+so the test checks the options the pipeline really passes: they must be accepted by lerobot-train for ACT on state + environment-state
 observations, and must reach the saved policy config.
 """
 
@@ -18,10 +18,12 @@ from lerobot_skillret.pipeline.config import PipelineConfig, TrainSpec
 from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.stages import StageRunner
 
-SMOKE_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "pipeline" / "smoke.yaml"
+CONFIGS = [
+    Path(__file__).resolve().parents[1] / "configs" / "pipeline" / name for name in ("smoke.yaml", "benchmark.yaml")
+]
 
-# Used only while smoke.yaml has no `baselines.act` section; the same values as the baseline fragment handed to the
-# pipeline configs (chunked ACT without image backbone, sized for a 2-core CPU).
+# Used only while neither config has a `baselines.act` section; the same values as the baseline fragment handed to
+# the pipeline configs (chunked ACT without image backbone, sized for a 2-core CPU).
 ACT_FALLBACK = TrainSpec(
     steps=1000,
     batch_size=32,
@@ -45,8 +47,10 @@ ACT_FALLBACK = TrainSpec(
 
 
 def act_spec() -> TrainSpec:
-    baselines = PipelineConfig.from_yaml(SMOKE_CONFIG).baselines if SMOKE_CONFIG.is_file() else {}
-    return baselines.get("act", ACT_FALLBACK)
+    for path in CONFIGS:
+        if path.is_file() and "act" in (baselines := PipelineConfig.from_yaml(path).baselines):
+            return baselines["act"]
+    return ACT_FALLBACK
 
 
 @pytest.mark.slow
