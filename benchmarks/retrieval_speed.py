@@ -1,6 +1,6 @@
 """Time and peak extra memory of retrieval (Algorithm 2, lines 4-6) on random latents, printed as one table.
 
-    .venv/bin/python benchmarks/retrieval_speed.py                  # everything (~2-3 minutes on 2 cores)
+    .venv/bin/python benchmarks/retrieval_speed.py                  # everything (~3-6 minutes on 2 cores)
     .venv/bin/python benchmarks/retrieval_speed.py --public-sizes   # without the 5 GB dense float64 baseline
 
 Each method runs in a fresh subprocess, so its peak resident memory is its own: "extra MiB" is the growth of the
@@ -14,6 +14,18 @@ time (user + system, all threads): on a loaded machine cpu s / threads estimates
 - public (dense float64 cdist): the public implementation's approach, the full N x M float64 matrix from
   `scipy.spatial.distance.cdist`, then the row minimum and an argsort. It is also the float64 reference: the
   "same set" column says whether skillret selected exactly its windows.
+
+Measured 2026-11-22 on the project's 2-core CPU while other jobs kept the load average at 6-9 (so wall times are
+2-4x what an idle machine gives; cpu s is the steadier figure):
+
+    method                               N   time s    cpu s  extra MiB  same set as float64
+    skillret L2 (chunked GEMM)     250,000     5.31     1.62         87                  yes
+    skillret L2 (chunked GEMM)   2,300,000    59.37    16.98        254                    -
+    skillret symmetric KL          250,000    14.86     4.64         53   n/a (other metric)
+    public: dense float64 cdist    250,000    55.33    25.64       4892          (reference)
+
+Across five runs the 2.3M row took 13.5-17.6 cpu s (31-59 s wall under load): about 7-9 s of wall time on the
+two idle cores, an estimate, not a measurement.
 """
 
 from __future__ import annotations
