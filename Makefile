@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 	@rm -f $(VENV)/.installed-* && touch $@
 
 demo: install
-	MUJOCO_GL=egl $(BIN)/skillret-pipeline --config configs/pipeline/demo.yaml
+	MUJOCO_GL=egl $(BIN)/skillret-pipeline run --config configs/pipeline/demo.yaml
 
 test: install
 	MUJOCO_GL=egl $(BIN)/python -m pytest -q tests

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_skillret.pipeline.config import PipelineConfig
+from lerobot_skillret.pipeline.config import PipelineConfig, RetrievalSpec
 from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.results import bar_plot, collect, markdown_table
 from lerobot_skillret.pipeline.stages import Stage, StageRunner
@@ -87,6 +87,12 @@ def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
     path.write_text("methods: [skillret, act]\n")
     with pytest.raises(ValueError, match=r"`act` needs a `baselines\.act` section"):
         PipelineConfig.from_yaml(path)
+    path.write_text("tasks: [brekfast]\n")
+    with pytest.raises(ValueError, match="unknown tasks \\['brekfast'\\]"):
+        PipelineConfig.from_yaml(path)
+    path.write_text("data: {cameras: true}\n")
+    with pytest.raises(ValueError, match=r"data\.cameras"):
+        PipelineConfig.from_yaml(path)
     path.write_text("eval: {n_episodes: 2, batch_size: 4}\n")
     with pytest.raises(ValueError, match="batch_size"):
         PipelineConfig.from_yaml(path)
@@ -95,14 +101,19 @@ def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
 
 
 def test_plan_wires_each_ablation(tmp_path: Path) -> None:
-    methods = ["skillret", "no_retrieval", "random_retrieval", "no_prior"]
-    plan = Plan(PipelineConfig(output_dir=str(tmp_path), tasks=["cook"], methods=methods))
+    methods = ["skillret", "no_retrieval", "random_retrieval", "all_retrieval", "no_prior"]
+    retrieval = RetrievalSpec(args={"fraction": 0.05, "num-prior": 1000})
+    plan = Plan(PipelineConfig(output_dir=str(tmp_path), tasks=["cook"], methods=methods, retrieval=retrieval))
     cmds = {m: " ".join(plan.train_stage(Cell(m, "cook", 0)).command) for m in methods}
     assert "--policy.retrieval_path=" in cmds["skillret"] and "cook_default_seed0" in cmds["skillret"]
     assert "cook_random_seed0" in cmds["random_retrieval"]
     assert "--policy.use_retrieval=false" in cmds["no_retrieval"] and "prior_seed0" in cmds["no_retrieval"]
     assert "target_cook_seed0" in cmds["no_prior"] and "--policy.prior_repo_id=null" in cmds["no_prior"]
     assert "--ablation=random" in " ".join(plan.retrieval_stage("cook", "random", 0).command)
+    assert "cook_all_seed0" in cmds["all_retrieval"]
+    all_cmd = plan.retrieval_stage("cook", "all", 0).command
+    assert "--ablation=all" in all_cmd and not any(a.startswith(("--fraction", "--num-prior")) for a in all_cmd)
+    assert "--fraction=0.05" in plan.retrieval_stage("cook", "default", 0).command
 
 
 def _cell(root: Path, method: str, task: str, seed: int, success: float) -> None:

@@ -397,3 +397,16 @@ def test_fast_windows_equal_lerobots_windows(prior_root, stage):
         config.input_features = {"observation.images.cam": PolicyFeature(FeatureType.VISUAL, (3, 8, 8))}
         config.output_features = {"action": PolicyFeature(FeatureType.ACTION, (7,))}
         config.validate_features()
+
+
+def test_training_windows_repeat_under_the_same_seed(prior_root):
+    """The policy's own window draws (temporal pairs) follow torch's global seed, which `--seed` sets."""
+
+    def first_loss(seed: int) -> float:
+        torch.manual_seed(seed)
+        policy = build_policy(tiny_config(), PRIOR_REPO, prior_root)
+        loss, _ = policy.forward(training_batch(policy.config, PRIOR_REPO, prior_root))
+        return float(loss)
+
+    assert first_loss(3) == first_loss(3)
+    assert first_loss(3) != first_loss(4)

@@ -26,7 +26,6 @@ from lerobot_skillret.kitchen.collect import Episode, EpisodeJob, run_episode
 from lerobot_skillret.kitchen.layout import CONTROL_FREQ
 from lerobot_skillret.kitchen.tasks import TASKS
 
-KITCHEN_META = "meta/kitchen.json"
 PLAY_TASK_TEXT = "play"
 DEFAULT_PLAY_EPISODES = 150
 DEFAULT_PLAY_STEPS = 2000
@@ -133,7 +132,7 @@ def generate(args) -> Path:
             "failed_attempts": failures,
             "episodes": episodes_meta,
         }
-        (tmp / KITCHEN_META).write_text(json.dumps(meta))
+        (tmp / O.KITCHEN_META).write_text(json.dumps(meta))
         if root.exists():
             shutil.rmtree(root)
         os.replace(tmp, root)
@@ -153,7 +152,7 @@ def _primitive_names() -> tuple[str, ...]:
 
 def load_kitchen_meta(root: str | Path) -> dict:
     """The generator's side file of a dataset root (primitive names, per-episode initial states, ...)."""
-    return json.loads((Path(root) / KITCHEN_META).read_text())
+    return json.loads((Path(root) / O.KITCHEN_META).read_text())
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -25,6 +25,7 @@ ACTION_NAMES = ["dx", "dy", "dz", "dax", "day", "daz", "gripper"]
 # env observation key -> LeRobot dataset / policy feature key
 ENV_TO_DATASET = {"agent_pos": "observation.state", "environment_state": "observation.environment_state"}
 PRIMITIVE_KEY = "primitive_index"
+KITCHEN_META = "meta/kitchen.json"  # per dataset: primitive names, episode seeds, tasks and initial states
 
 
 def image_key(camera: str) -> str:

@@ -87,6 +87,16 @@ class PipelineConfig:
                         f"pipeline config: method `{method}` needs a `baselines.{key}` section "
                         "(its lerobot-train options)."
                     )
+        from lerobot_skillret.kitchen.tasks import TASKS  # import-light: task definitions only
+
+        unknown_tasks = [t for t in self.tasks if t not in TASKS]
+        if unknown_tasks:
+            raise ValueError(f"pipeline config: unknown tasks {unknown_tasks}; choose from {sorted(TASKS)}.")
+        if self.data.cameras:
+            raise ValueError(
+                "pipeline config: `data.cameras: true` is not supported by the pipeline yet (retrieval and the "
+                "cpu policy config read low-dim windows only); train camera policies with lerobot-train directly."
+            )
         if not self.tasks or not self.seeds:
             raise ValueError("pipeline config: `tasks` and `seeds` must each name at least one entry.")
         if self.eval.batch_size > self.eval.n_episodes:

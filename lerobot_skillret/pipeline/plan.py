@@ -151,13 +151,19 @@ class Plan:
         head = ["--policy.type=skillret", "--policy.stage=skills"]
         return self._train(f"skills/{out.name}", out, data, self.cfg.skills, seed, head)
 
+    def retrieval_dir(self, task: str, mode: str, seed: int) -> Path:
+        """One folder per retrieval: the file stage 2 reads and its report, published together."""
+        return self.root / "retrieval" / f"{task}_{mode}_seed{seed}"
+
     def retrieval_path(self, task: str, mode: str, seed: int) -> Path:
-        return self.root / "retrieval" / f"{task}_{mode}_seed{seed}.safetensors"
+        return self.retrieval_dir(task, mode, seed) / "retrieval.safetensors"
 
     def retrieval_stage(self, task: str, mode: str, seed: int) -> Stage:
-        out = self.retrieval_path(task, mode, seed)
-        stage = Stage(f"retrieval/{out.stem}", out)
+        out = self.retrieval_dir(task, mode, seed)
+        stage = Stage(f"retrieval/{out.name}", out)
         options = {**self.cfg.retrieval.args, **RETRIEVAL_ARGS[mode], "seed": seed}
+        if mode == "all":  # the whole prior is retrieved: a fraction or candidate count would contradict it
+            options = {k: v for k, v in options.items() if k.replace("_", "-") not in ("fraction", "num-prior")}
         stage.command = [
             str(BIN / "skillret-retrieve"),
             "--checkpoint",
@@ -171,9 +177,9 @@ class Plan:
             "--target-root",
             str(self.demos_root(task)),
             "--output",
-            str(stage.partial),
+            str(stage.partial / "retrieval.safetensors"),
             "--report-dir",
-            str(out.with_suffix("")) + "_report",
+            str(stage.partial / "report"),
             *[f"--{k.replace('_', '-')}={v}" for k, v in options.items()],
         ]
         return stage

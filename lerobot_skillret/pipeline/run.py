@@ -131,8 +131,13 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     _log_to_stderr()
     if args.command == "run":
-        run(PipelineConfig.from_yaml(args.config, parse_overrides(args.overrides)))
+        try:
+            run(PipelineConfig.from_yaml(args.config, parse_overrides(args.overrides)))
+        except (FileNotFoundError, ValueError, RuntimeError) as err:
+            parser.exit(2, f"skillret-pipeline: {err}\n")
     else:
+        if not args.results.is_dir():
+            parser.exit(2, f"skillret-pipeline: {args.results} does not exist: no finished cells yet.\n")
         cells = collect(args.results)
         table = markdown_table(cells)
         (args.results / "results.md").write_text(table)

@@ -16,8 +16,6 @@ from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModuleBase
 
-OBSERVATION_KEYS = ("agent_pos", "environment_state", "pixels")
-
 
 class LeRobotActor(TensorDictModuleBase):
     """Reads the env's observation keys from a tensordict and writes `action` (unbatched or batched envs)."""

@@ -138,6 +138,8 @@ class SkillRetConfig(PreTrainedConfig):
         for kind, mode in self.skill_normalization_mapping.items():
             if NormalizationMode(mode) not in SKILL_NORMALIZATION_MODES:
                 fail("skill_normalization_mapping", {kind: mode}, f"supported modes: {SKILL_NORMALIZATION_MODES}")
+        if self.vision_backbone != "resnet18":
+            fail("vision_backbone", self.vision_backbone, "only resnet18 (the seed's C.1 backbone) is implemented")
         if self.retrieval_metric not in RETRIEVAL_METRICS:
             fail("retrieval_metric", self.retrieval_metric, f"choose one of {RETRIEVAL_METRICS}")
         for name in (

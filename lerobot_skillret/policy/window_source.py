@@ -33,7 +33,11 @@ class WindowSource:
     ) -> None:
         self.repo_id, self.root = repo_id, Path(root)
         self.columns = EpisodeColumns.from_dataset(repo_id, self.root)
-        self.sampler = WindowSampler(self.columns, history=history, horizon=horizon, keys=[*low_dim_keys, "action"])
+        # Seeded from torch's global RNG, which lerobot-train seeds with `--seed`: pairs and prior windows repeat.
+        seed = int(torch.randint(0, 2**62, ()))
+        self.sampler = WindowSampler(
+            self.columns, history=history, horizon=horizon, keys=[*low_dim_keys, "action"], seed=seed
+        )
         self.image_keys = list(image_keys)
         self._frames = None
         if self.image_keys:

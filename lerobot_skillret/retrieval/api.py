@@ -21,6 +21,7 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
+from lerobot_skillret.kitchen.observations import KITCHEN_META, PRIMITIVE_KEY
 from lerobot_skillret.retrieval.engine import (
     STREAM_CANDIDATES,
     STREAM_TARGETS,
@@ -33,7 +34,6 @@ from lerobot_skillret.retrieval.schema import RetrievalResult
 from lerobot_skillret.retrieval.settings import EVERY_WINDOW, RetrievalSettings
 
 log = logging.getLogger(__name__)
-PRIMITIVE_KEY = "primitive_index"
 
 
 @dataclass
@@ -260,7 +260,7 @@ def primitive_names(root: str | Path) -> list[str] | None:
     names, one per label value). None when absent: reports then say "primitive <i>".
     """
     meta = Path(root) / "meta"
-    kitchen = meta / "kitchen.json"
+    kitchen = Path(root) / KITCHEN_META
     if kitchen.is_file():
         names = json.loads(kitchen.read_text()).get("primitive_names")
         if isinstance(names, list):
