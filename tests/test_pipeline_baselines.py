@@ -1,8 +1,8 @@
 """The ACT baseline trains through the pipeline's own stock `lerobot-train` command on low-dim data (no cameras).
 
-The options come from the pipeline configs (`baselines.act` of configs/pipeline/smoke.yaml, else of benchmark.yaml),
-so the test checks the options the pipeline really passes: they must be accepted by lerobot-train for ACT on state + environment-state
-observations, and must reach the saved policy config.
+The options come from `baselines.act` of configs/pipeline/benchmark.yaml, so the test checks the options the pipeline
+really passes: lerobot-train must accept them for ACT on state + environment-state observations, and they must reach
+the saved policy config.
 """
 
 from __future__ import annotations
@@ -18,39 +18,14 @@ from lerobot_skillret.pipeline.config import PipelineConfig, TrainSpec
 from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.stages import StageRunner
 
-CONFIGS = [
-    Path(__file__).resolve().parents[1] / "configs" / "pipeline" / name for name in ("smoke.yaml", "benchmark.yaml")
-]
-
-# Used only while neither config has a `baselines.act` section; the same values as the baseline fragment handed to
-# the pipeline configs (chunked ACT without image backbone, sized for a 2-core CPU).
-ACT_FALLBACK = TrainSpec(
-    steps=1000,
-    batch_size=32,
-    save_freq=500,
-    num_workers=0,
-    args={
-        "policy.chunk_size": 20,
-        "policy.n_action_steps": 10,
-        "policy.dim_model": 128,
-        "policy.n_heads": 4,
-        "policy.dim_feedforward": 512,
-        "policy.n_encoder_layers": 2,
-        "policy.n_decoder_layers": 1,
-        "policy.use_vae": True,
-        "policy.n_vae_encoder_layers": 2,
-        "policy.latent_dim": 32,
-        "policy.pretrained_backbone_weights": None,
-        "policy.optimizer_lr": 1e-4,
-    },
-)
+BENCHMARK = Path(__file__).resolve().parents[1] / "configs" / "pipeline" / "benchmark.yaml"
 
 
 def act_spec() -> TrainSpec:
-    for path in CONFIGS:
-        if path.is_file() and "act" in (baselines := PipelineConfig.from_yaml(path).baselines):
-            return baselines["act"]
-    return ACT_FALLBACK
+    """The ACT options the benchmark really passes (one source: the pipeline config)."""
+    baselines = PipelineConfig.from_yaml(BENCHMARK).baselines
+    assert "act" in baselines, f"{BENCHMARK} lost its `baselines.act` section"
+    return baselines["act"]
 
 
 @pytest.mark.slow

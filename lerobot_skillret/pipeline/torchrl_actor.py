@@ -1,7 +1,10 @@
 """Any saved LeRobot policy (skillret included) as a TorchRL actor, for `torchrl.envs.GymEnv` rollouts.
 
 The actor applies exactly the per-step chain `lerobot-eval` applies (observation conversion, processors,
-`select_action`, post-processor), so both paths produce the same actions for the same observations.
+`select_action`, post-processor), so both paths produce the same actions for the same observations (`tests/test_pipeline_torchrl.py`). Two limits:
+lerobot-eval's env-specific pre/post-processors are not applied (they are identities for `panda_kitchen`, not for
+every env), and the caller must call `reset()` at each episode start (an auto-reset inside a torchrl rollout does
+not reach the policy's observation history).
 """
 
 from __future__ import annotations
