@@ -8,7 +8,10 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | sha1sum | cut -c1-12)
 
 .PHONY: install demo test lint
+# The dependencies are installed once per pin set (the stamp); the package itself is re-linked every time, so a
+# venv shared by several clones (CI's cache) always runs this clone's code.
 install: $(STAMP)
+	$(BIN)/python -m pip install -q --no-deps -e .
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
