@@ -1,7 +1,7 @@
 """`skillret-pipeline`: the whole method on the kitchen benchmark, one resumable command.
 
     skillret-pipeline run --config configs/pipeline/demo.yaml      # generate -> skills -> retrieval -> policy -> eval
-    skillret-pipeline table --results benchmarks/results           # markdown table + bar plot from raw eval JSONs
+    skillret-pipeline table --results benchmarks/results/benchmark # markdown table + bar plot from raw eval JSONs
 
 Every stage runs a stock CLI (skillret-generate, lerobot-train, skillret-retrieve, lerobot-eval) as a subprocess.
 Finished stages are skipped on re-run, so an interrupted run is continued by running the same command again.
@@ -30,7 +30,10 @@ SKILLS_FROM_PRIOR = ("skillret", "no_retrieval", "all_retrieval", "random_retrie
 def run_cell(plan: Plan, runner: StageRunner, cell: Cell, results_dir: Path | None) -> dict:
     if plan.cell_path(cell).exists():
         log.info("[skip] cell %s/%s/seed%d (summary exists)", cell.method, cell.task, cell.seed)
-        return yaml.safe_load(plan.cell_path(cell).read_text())
+        summary = yaml.safe_load(plan.cell_path(cell).read_text())
+        if results_dir is not None and not (results_dir / cell.method / cell.task / f"seed{cell.seed}").exists():
+            publish_cell(plan, cell, summary, results_dir)  # results_dir was added after the cell finished
+        return summary
     if cell.method == "no_prior":
         runner.run(plan.skills_stage(cell.seed, cell.task))
     mode = RETRIEVAL_MODE.get(cell.method)
@@ -125,8 +128,8 @@ def main(argv: list[str] | None = None) -> None:
     table_p.add_argument(
         "--results",
         type=Path,
-        default=Path("benchmarks/results"),
-        help="folder holding <method>/<task>/seed<s>/cell.json (default: benchmarks/results)",
+        default=Path("benchmarks/results/benchmark"),
+        help="folder holding <method>/<task>/seed<s>/cell.json (default: benchmarks/results/benchmark)",
     )
     args = parser.parse_args(argv)
     _log_to_stderr()
