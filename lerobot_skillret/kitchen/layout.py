@@ -29,7 +29,7 @@ FIXTURES: dict[str, tuple[float, float]] = {
     "lamp": (0.3, 0.0),
     "drawer": (0.22, -0.27),
     "serving": (-0.16, 0.0),
-    "shelf": (-0.17, -0.2),
+    "shelf": (-0.13, -0.2),
 }
 STOVE_HALF = (0.1, 0.09)
 STOVE_TOP_Z = TABLE_Z + 0.03
@@ -85,13 +85,13 @@ MOVABLES: tuple[str, ...] = (*ITEMS, *VESSELS)
 
 # Rectangular table regions (x0, x1, y0, y1) for sampling positions of object centres.
 REGIONS: dict[str, tuple[float, float, float, float]] = {
-    "front_left": (-0.22, -0.08, 0.17, 0.30),
+    "front_left": (-0.17, -0.08, 0.17, 0.30),  # x >= -0.17: closer is out of the arm's precise reach
     "center": (-0.05, 0.08, -0.07, 0.045),  # y <= 0.045: open fingers would touch the stove
     "pan_table": (-0.15, -0.13, 0.21, 0.25),  # pan on the table, clear of the stove, handle reachable
 }
 # Where items go when they are placed "on the table" (free spots are sampled in these regions).
 TABLE_DROP_REGIONS = ("front_left", "center")
-SHELF_SLOTS = ((-0.2, -0.2), (-0.14, -0.2))
+SHELF_SLOTS = ((-0.16, -0.2), (-0.1, -0.2))
 # Objects not used by a scene wait out of reach along the table's sides.
 PARKING = tuple((x, y) for y in (0.45, 0.58, -0.45, -0.58) for x in (-0.15, 0.0, 0.15))
 # Table area that counts as "on the table" (reachable work surface).
