@@ -29,7 +29,7 @@ FIXTURES: dict[str, tuple[float, float]] = {
     "lamp": (0.3, 0.0),
     "drawer": (0.22, -0.27),
     "serving": (-0.16, 0.0),
-    "shelf": (-0.17, -0.2),  # further in, picks would hit the open drawer's handle
+    "shelf": (-0.13, -0.2),  # closer to the base the arm misses; the drawer is opened after the shelf
 }
 STOVE_HALF = (0.1, 0.09)
 STOVE_TOP_Z = TABLE_Z + 0.03
@@ -91,7 +91,7 @@ REGIONS: dict[str, tuple[float, float, float, float]] = {
 }
 # Where items go when they are placed "on the table" (free spots are sampled in these regions).
 TABLE_DROP_REGIONS = ("front_left", "center")
-SHELF_SLOTS = ((-0.2, -0.2), (-0.14, -0.2))
+SHELF_SLOTS = ((-0.16, -0.2), (-0.1, -0.2))
 # Objects not used by a scene wait out of reach along the table's sides.
 PARKING = tuple((x, y) for y in (0.45, 0.58, -0.45, -0.58) for x in (-0.15, 0.0, 0.15))
 # Table area that counts as "on the table" (reachable work surface).
