@@ -18,14 +18,7 @@ from synthetic import make_synthetic_dataset
 from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
 from lerobot_skillret.policy.processor_skillret import make_skillret_pre_post_processors
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """One intra-op thread: on the shared 2-core machine oversubscribed threads slow tiny models ~20x."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")
