@@ -233,6 +233,24 @@ def test_select_action_runs_skills_closed_loop(prior_root):
     assert len(policy._history_frames) == config.history and policy._steps_left == config.horizon - 1
 
 
+def test_execute_skill_decodes_the_given_skill_like_the_policy_path(prior_root):
+    """Oracle-skill diagnostics go through the same decoder path as the policy's own choice."""
+    config = tiny_config()
+    policy = build_policy(config, PRIOR_REPO, prior_root)
+    batch = training_batch(config, PRIOR_REPO, prior_root, size=2)
+    observation = {key: batch[key][:, 0] for key in policy.observation_keys}
+    policy.reset()
+    own = policy.select_action(observation)
+    chosen = policy._skill.clone()
+    policy.reset()
+    policy.execute_skill(chosen)
+    assert torch.equal(policy.select_action(observation), own)
+    policy.reset()
+    policy.execute_skill(chosen + 1.0)
+    assert not torch.allclose(policy.select_action(observation), own)
+    assert policy._steps_left == config.horizon - 1
+
+
 def test_decoder_scaling_is_the_stage1_one(stage1_dir, target_root):
     """A stage-2 policy built with the TARGET stats (as lerobot-train does) acts exactly like the stage-1 one,
     and the processors LeRobot rebuilds with target stats stay identities."""

@@ -267,6 +267,13 @@ class SkillRetPolicy(PreTrainedPolicy):
         ids = torch.full((size,), TARGET_ID, dtype=torch.long, device=self._device())
         return self.latent_policy(history, ids)
 
+    def execute_skill(self, skill: Tensor) -> None:
+        """Decode `skill` (B, latent_dim) over the next H `select_action` calls instead of the policy's choice.
+
+        For diagnostics: executing oracle latents encoded from demonstrations separates the skill decoder's
+        closed-loop fidelity from the latent policy's accuracy (see examples/oracle_skills.py)."""
+        self._skill, self._decoder_state, self._steps_left = skill.to(self._device()), None, self.config.horizon
+
     @torch.inference_mode()
     def select_action(self, batch: dict[str, Tensor]) -> Tensor:
         """(B, A) unnormalised action. Every H steps z = pi(history, id=target); in between, the closed-loop
