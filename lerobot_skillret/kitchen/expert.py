@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from lerobot_skillret.kitchen.primitives import Driver, OutOfSteps, run_primitive
-from lerobot_skillret.kitchen.sampling import sample_poses
+from lerobot_skillret.kitchen.sampling import PlacementError, sample_poses
 from lerobot_skillret.kitchen.tasks import Task
 
 
@@ -21,6 +21,6 @@ def run_expert(driver: Driver, task: Task) -> bool:
         for step in task.plan:
             if not run_primitive(driver, step.primitive, *step.args):
                 return False
-    except OutOfSteps:
+    except (OutOfSteps, PlacementError):  # out of time, or no free spot to put an item down
         return False
     return task.success(driver.scene)

@@ -25,12 +25,12 @@ def free_spot(
     rng: np.random.Generator, regions: tuple[str, ...], radius: float, taken: list[tuple[float, float, float]]
 ) -> tuple[float, float]:
     """A uniformly random (x, y) in one of `regions` that keeps clearance from `taken` (x, y, radius) circles."""
-    for _ in range(MAX_TRIES):
+    for _ in range(5 * MAX_TRIES):
         x0, x1, y0, y1 = layout.REGIONS[regions[rng.integers(len(regions))]]
         x, y = rng.uniform(x0, x1), rng.uniform(y0, y1)
         if all(np.hypot(x - tx, y - ty) >= radius + tr + CLEARANCE for tx, ty, tr in taken):
             return float(x), float(y)
-    raise PlacementError(f"no free spot of radius {radius} in {regions} after {MAX_TRIES} tries")
+    raise PlacementError(f"no free spot of radius {radius} in {regions} after {5 * MAX_TRIES} tries")
 
 
 def sample_poses(task: Task, rng: np.random.Generator) -> tuple[dict[str, Pose], dict[str, float]]:
