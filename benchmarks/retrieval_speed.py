@@ -15,17 +15,15 @@ time (user + system, all threads): on a loaded machine cpu s / threads estimates
   `scipy.spatial.distance.cdist`, then the row minimum and an argsort. It is also the float64 reference: the
   "same set" column says whether skillret selected exactly its windows.
 
-Measured 2026-11-22 on the project's 2-core CPU while other jobs kept the load average at 6-9 (so wall times are
-2-4x what an idle machine gives; cpu s is the steadier figure):
+Measured 2026-11-22 on the project's idle 2-core CPU (load average < 1), `--repeats 2`:
 
-    method                               N   time s    cpu s  extra MiB  same set as float64
-    skillret L2 (chunked GEMM)     250,000     5.31     1.62         87                  yes
-    skillret L2 (chunked GEMM)   2,300,000    59.37    16.98        254                    -
-    skillret symmetric KL          250,000    14.86     4.64         53   n/a (other metric)
-    public: dense float64 cdist    250,000    55.33    25.64       4892          (reference)
+    method                                  N   time s    cpu s  extra MiB  same set as float64
+    skillret L2 (chunked GEMM)        250,000     0.69     1.15         80                  yes
+    skillret L2 (chunked GEMM)      2,300,000     5.72    10.15        260                    -
+    skillret symmetric KL             250,000     1.65     3.07         50   n/a (other metric)
+    public: dense float64 cdist       250,000    25.26    25.26       4892          (reference)
 
-Across five runs the 2.3M row took 13.5-17.6 cpu s (31-59 s wall under load): about 7-9 s of wall time on the
-two idle cores, an estimate, not a measurement.
+Under load (average 6-9 from other jobs) the same rows took 5.3 / 59 / 15 / 55 s wall: cpu s is the steadier figure.
 """
 
 from __future__ import annotations
