@@ -175,6 +175,19 @@ def test_cache_reused_then_invalidated(tmp_path, monkeypatch):
     assert leftovers == [f"columns-v{windows.CACHE_VERSION}-{changed.fingerprint}"]  # stale one removed
 
 
+def test_shared_cache_dir_keeps_every_datasets_cache(tmp_path, monkeypatch):
+    """Two datasets sharing one cache_dir never evict each other's cache."""
+    cache = tmp_path / "cache"
+    roots = [make_synthetic_dataset(tmp_path / f"ds{i}", num_episodes=2, seed=i) for i in range(2)]
+    for root in roots:
+        EpisodeColumns.from_dataset(REPO, root, cache_dir=cache)
+    assert len(list(cache.glob("columns-*"))) == 2
+    with monkeypatch.context() as patch:
+        patch.setattr(windows, "_export", lambda *a, **k: (_ for _ in ()).throw(AssertionError("rebuilt")))
+        for root in roots:
+            EpisodeColumns.from_dataset(REPO, root, cache_dir=cache)
+
+
 def test_concurrent_builders_publish_one_complete_cache(tmp_path, monkeypatch):
     root = make_synthetic_dataset(tmp_path / "ds", num_episodes=2)
     cache = tmp_path / "cache"

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import shutil
 import tempfile
 import uuid
@@ -47,6 +48,7 @@ from tensordict import TensorDict
 
 from lerobot_skillret.data.fingerprint import dataset_fingerprint
 
+log = logging.getLogger(__name__)
 CACHE_DIRNAME = ".skillret_cache"
 CACHE_VERSION = 1  # bump when the cache layout or the exported columns change
 BOUND_KEYS = ("episode_start", "episode_end")
@@ -94,7 +96,7 @@ class EpisodeColumns:
         final = cache_dir / name
         if not (final / _INFO_FILE).is_file():
             _build_cache(repo_id, root, fingerprint, wanted, cache_dir, final)
-            _remove_stale(cache_dir, keep=name)
+            _remove_stale(cache_dir, keep=name, root=root)
         return cls._load(final)
 
     @classmethod
@@ -205,8 +207,10 @@ def _build_cache(
     repo_id: str, root: Path, fingerprint: str, wanted: list[str] | None, cache_dir: Path, final: Path
 ) -> None:
     """Export into a private temporary folder, then rename it into place (atomic on one filesystem)."""
+    log.info("exporting the low-dim columns of %s to %s (once per dataset version)", root, final)
     td, info = _export(repo_id, root, wanted)
     info["fingerprint"] = fingerprint
+    info["root"] = str(root.resolve())
     cache_dir.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{final.name}-{uuid.uuid4().hex[:6]}-", dir=cache_dir))
     try:
@@ -222,10 +226,15 @@ def _build_cache(
             shutil.rmtree(tmp, ignore_errors=True)
 
 
-def _remove_stale(cache_dir: Path, keep: str) -> None:
-    """Drop caches of older dataset versions (open memmaps of a running reader survive unlinking on POSIX)."""
+def _remove_stale(cache_dir: Path, keep: str, root: Path) -> None:
+    """Drop this dataset's caches of older contents or cache versions; never another dataset's (a `cache_dir` may be
+    shared). Open memmaps of a running reader survive unlinking on POSIX."""
+    _, version, fingerprint = keep.split("-")[:3]
     for old in cache_dir.glob("columns-*"):
-        if old.name != keep and old.name.split("-")[2] != keep.split("-")[2]:
+        info = old / _INFO_FILE
+        if old.name == keep or not info.is_file() or json.loads(info.read_text()).get("root") != str(root.resolve()):
+            continue
+        if old.name.split("-")[1:3] != [version, fingerprint]:
             shutil.rmtree(old, ignore_errors=True)
 
 
