@@ -35,6 +35,19 @@ TINY_CLI = [
 ]
 
 
+def unit_stats(features: dict) -> dict[str, dict[str, torch.Tensor]]:
+    """Identity normalisation statistics (mean 0, std 1, range [-1, 1]) for checkpoints built without a dataset."""
+    return {
+        key: {
+            "mean": torch.zeros(f.shape),
+            "std": torch.ones(f.shape),
+            "min": -torch.ones(f.shape),
+            "max": torch.ones(f.shape),
+        }
+        for key, f in features.items()
+    }
+
+
 def tiny_config(**overrides) -> SkillRetConfig:
     values = dict(
         horizon=HORIZON,

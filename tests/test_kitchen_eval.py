@@ -8,9 +8,9 @@ import sys
 import warnings
 
 import pytest
-import torch
 from lerobot.configs.types import FeatureType
 from lerobot.envs.utils import env_to_policy_features
+from policy_fixtures import unit_stats
 
 from lerobot_skillret.kitchen.env_config import PandaKitchenEnv
 
@@ -38,16 +38,7 @@ def _tiny_act_checkpoint(path) -> None:
         device="cpu",
         push_to_hub=False,
     )
-    stats = {
-        key: {
-            "mean": torch.zeros(f.shape),
-            "std": torch.ones(f.shape),
-            "min": -torch.ones(f.shape),
-            "max": torch.ones(f.shape),
-        }
-        for key, f in features.items()
-    }
-    pre, post = make_act_pre_post_processors(config, dataset_stats=stats)
+    pre, post = make_act_pre_post_processors(config, dataset_stats=unit_stats(features))
     ACTPolicy(config).save_pretrained(path)
     pre.save_pretrained(path)
     post.save_pretrained(path)

@@ -199,7 +199,7 @@ def test_lerobot_eval_on_the_kitchen_env(tmp_path, monkeypatch):
     through lerobot-eval (toy scale: one short episode; the weights are untrained)."""
     from lerobot.envs.utils import env_to_policy_features
     from lerobot.scripts import lerobot_eval
-    from policy_fixtures import tiny_config
+    from policy_fixtures import tiny_config, unit_stats
 
     from lerobot_skillret.kitchen.env_config import PandaKitchenEnv
     from lerobot_skillret.policy.processor_skillret import make_skillret_pre_post_processors
@@ -209,17 +209,8 @@ def test_lerobot_eval_on_the_kitchen_env(tmp_path, monkeypatch):
     config = tiny_config(stage="policy")
     config.output_features = {k: f for k, f in features.items() if f.type is FeatureType.ACTION}
     config.input_features = {k: f for k, f in features.items() if k not in config.output_features}
-    unit = {
-        k: {
-            "mean": torch.zeros(f.shape),
-            "std": torch.ones(f.shape),
-            "min": -torch.ones(f.shape),
-            "max": torch.ones(f.shape),
-        }
-        for k, f in features.items()
-    }
     checkpoint = tmp_path / "pretrained_model"
-    SkillRetPolicy(config, dataset_stats=unit).save_pretrained(checkpoint)
+    SkillRetPolicy(config, dataset_stats=unit_stats(features)).save_pretrained(checkpoint)
     for processor in make_skillret_pre_post_processors(config):
         processor.save_pretrained(checkpoint)
     monkeypatch.setattr(

@@ -31,6 +31,8 @@ RETRIEVAL_MODE = {
     "no_retrieval": None,
     "no_prior": None,
 }
+# skillret variants whose skills are pre-trained on the prior (stage 1 shared by every task of a seed).
+SKILLS_FROM_PRIOR = ("skillret", "no_retrieval", "all_retrieval", "random_retrieval")
 RETRIEVAL_ARGS = {"default": {}, "all": {"ablation": "all"}, "random": {"ablation": "random"}}
 
 
@@ -115,7 +117,8 @@ class Plan:
         return stages
 
     def needs_prior(self) -> bool:
-        return any(m not in ("no_prior", "act", "diffusion") for m in self.cfg.methods)
+        """Play data is generated only if a method reads it: skills from the prior, or ACT's pre-training."""
+        return any(m in SKILLS_FROM_PRIOR or m == "act_ft" for m in self.cfg.methods)
 
     # --- training -----------------------------------------------------------------------------------------
     def _train(self, name: str, output: Path, dataset_root: Path, spec: TrainSpec, seed: int, head: list[str]) -> Stage:
@@ -263,6 +266,11 @@ class Plan:
         stage.command = [str(BIN / "lerobot-eval"), *cli_args(options)]
         stage.after = lambda partial: _repoint(partial / "eval_info.json", partial, out)
         return stage
+
+    @staticmethod
+    def published_dir(results_dir: Path, cell: Cell) -> Path:
+        """Where a finished cell's raw eval JSONs and summary are kept in the repository."""
+        return results_dir / cell.method / cell.task / f"seed{cell.seed}"
 
     def cell_path(self, cell: Cell) -> Path:
         return self.root / "cells" / cell.method / cell.task / f"seed{cell.seed}.json"

@@ -46,7 +46,7 @@ def publish_cell(plan: Plan, cell: Cell, summary: dict[str, Any], results_dir: P
     write_json_atomic(plan.cell_path(cell), summary)
     if results_dir is None:
         return
-    dest = results_dir / cell.method / cell.task / f"seed{cell.seed}"
+    dest = plan.published_dir(results_dir, cell)
     tmp = dest.with_name(dest.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)

@@ -10,6 +10,7 @@ Finished stages are skipped on re-run, so an interrupted run is continued by run
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import time
@@ -18,20 +19,19 @@ from pathlib import Path
 import yaml
 
 from lerobot_skillret.pipeline.config import PipelineConfig
-from lerobot_skillret.pipeline.plan import RETRIEVAL_MODE, Cell, Plan
+from lerobot_skillret.pipeline.plan import RETRIEVAL_MODE, SKILLS_FROM_PRIOR, Cell, Plan
 from lerobot_skillret.pipeline.protocol import publish_cell, summarise_cell
 from lerobot_skillret.pipeline.results import bar_plot, collect, markdown_table
 from lerobot_skillret.pipeline.stages import StageRunner
 
 log = logging.getLogger("skillret.pipeline")
-SKILLS_FROM_PRIOR = ("skillret", "no_retrieval", "all_retrieval", "random_retrieval")
 
 
 def run_cell(plan: Plan, runner: StageRunner, cell: Cell, results_dir: Path | None) -> dict:
     if plan.cell_path(cell).exists():
         log.info("[skip] cell %s/%s/seed%d (summary exists)", cell.method, cell.task, cell.seed)
-        summary = yaml.safe_load(plan.cell_path(cell).read_text())
-        if results_dir is not None and not (results_dir / cell.method / cell.task / f"seed{cell.seed}").exists():
+        summary = json.loads(plan.cell_path(cell).read_text())
+        if results_dir is not None and not plan.published_dir(results_dir, cell).exists():
             publish_cell(plan, cell, summary, results_dir)  # results_dir was added after the cell finished
         return summary
     if cell.method == "no_prior":
@@ -91,7 +91,7 @@ def run(cfg: PipelineConfig) -> Path:
 def collect_cells(plan: Plan) -> dict[tuple[str, str], list[dict]]:
     cells: dict[tuple[str, str], list[dict]] = {}
     for cell in plan.cells():
-        summary = yaml.safe_load(plan.cell_path(cell).read_text())
+        summary = json.loads(plan.cell_path(cell).read_text())
         cells.setdefault((cell.method, cell.task), []).append(summary)
     return cells
 
