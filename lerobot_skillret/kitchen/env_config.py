@@ -27,6 +27,8 @@ class PandaKitchenEnv(EnvConfig):
     episode_length: int | None = None  # None: the task's own max_steps
     cameras: tuple[str, ...] = ()
     image_size: int = O.DEFAULT_IMAGE_SIZE
+    # lerobot-eval renders every step of its first 10 episodes; a stride k re-renders every k steps (videos at fps/k)
+    render_stride: int = 1
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=dict)
 
@@ -47,4 +49,5 @@ class PandaKitchenEnv(EnvConfig):
             "cameras": tuple(self.cameras),
             "image_size": self.image_size,
             "episode_length": self.episode_length,
+            "render_stride": self.render_stride,
         }

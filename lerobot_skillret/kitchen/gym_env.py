@@ -1,7 +1,8 @@
 """Gymnasium env for one kitchen task (`gym_panda_kitchen/<task>`), as LeRobot's eval expects it.
 
 Observations come from `observations.build_observation`; success from the task's predicates; the episode
-terminates on success and is truncated at the task's `max_steps`.
+terminates on success and is truncated at the task's `max_steps`. The reward is the fraction of the task's goals met
+(1.0 exactly on success), so a failed rollout still reports how far it got.
 """
 
 from __future__ import annotations
@@ -31,13 +32,18 @@ class KitchenEnv(gym.Env):
         image_size: int = O.DEFAULT_IMAGE_SIZE,
         episode_length: int | None = None,
         render_mode: str = "rgb_array",
+        render_stride: int = 1,
     ):
+        if render_stride < 1:
+            raise ValueError(f"render_stride must be >= 1 (got {render_stride})")
         self._task = get_task(task)
         self.task = task
         self.task_description = self._task.description
         self.cameras = O.check_cameras(cameras)
         self.image_size = image_size
         self.render_mode = render_mode
+        self.render_stride = render_stride
+        self._frame: np.ndarray | None = None
         self._max_episode_steps = int(episode_length or self._task.max_steps)
         self.scene = KitchenScene()
         self._cam = CameraRenderer(self.scene, image_size) if self.cameras else None
@@ -61,20 +67,25 @@ class KitchenEnv(gym.Env):
         super().reset(seed=seed)
         reset_scene(self.scene, self._task, self.np_random)
         self._steps = 0
+        self._frame = None
         return self._obs(), {"is_success": False}
 
     def step(self, action):
         action = np.clip(np.asarray(action, dtype=np.float64).reshape(-1), -1.0, 1.0)
         self.scene.step(action)
         self._steps += 1
-        success = bool(self._task.success(self.scene))
+        progress = self._task.progress(self.scene)
+        success = progress == 1.0
         truncated = self._steps >= self._max_episode_steps and not success
-        return self._obs(), float(success), success, truncated, {"is_success": success}
+        return self._obs(), progress, success, truncated, {"is_success": success}
 
     def render(self):
-        if self._viewer is None:
-            self._viewer = CameraRenderer(self.scene, RENDER_SIZE)
-        return self._viewer.render("agentview")
+        """Video frame; with `render_stride` k a fresh frame every k steps (rendering costs ~5x a sim step)."""
+        if self._frame is None or self._steps % self.render_stride == 0:
+            if self._viewer is None:
+                self._viewer = CameraRenderer(self.scene, RENDER_SIZE)
+            self._frame = self._viewer.render("agentview")
+        return self._frame
 
     def close(self):
         for r in (self._cam, self._viewer):

@@ -38,6 +38,10 @@ class Task:
     def success(self, scene: P.SceneState) -> bool:
         return all(goal(scene) for goal in self.goals)
 
+    def progress(self, scene: P.SceneState) -> float:
+        """Fraction of the goals met now: the env's reward, so lerobot-eval's `avg_max_reward` is subtask progress."""
+        return sum(goal(scene) for goal in self.goals) / len(self.goals)
+
     def unmet(self, scene: P.SceneState) -> list[str]:
         return [goal.name for goal in self.goals if not goal(scene)]
 

@@ -11,27 +11,34 @@ from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.stages import write_json_atomic
 
 
-def read_success(eval_dir: Path) -> tuple[float, int]:
-    """(success rate in [0, 1], number of rollouts) from a lerobot-eval output folder."""
-    info = json.loads((eval_dir / "eval_info.json").read_text())
-    overall = info["overall"]
-    return float(overall["pc_success"]) / 100.0, int(overall["n_episodes"])
+def read_eval(eval_dir: Path) -> dict[str, float | int]:
+    """Success rate in [0, 1], mean subtask progress in [0, 1] and rollout count from a lerobot-eval output folder.
+
+    Progress is lerobot-eval's `avg_max_reward`: the kitchen's reward is the fraction of the task's goals met.
+    """
+    overall = json.loads((eval_dir / "eval_info.json").read_text())["overall"]
+    return {
+        "success": float(overall["pc_success"]) / 100.0,
+        "subgoals": float(overall["avg_max_reward"]),
+        "n_episodes": int(overall["n_episodes"]),
+    }
 
 
 def summarise_cell(plan: Plan, cell: Cell, train_seconds: float | None, eval_seconds: float) -> dict[str, Any]:
-    """Collect every evaluated checkpoint of one run and pick the best, as the seed's protocol does."""
-    rows = []
-    for step, _ in plan.checkpoints(cell):
-        success, n = read_success(plan.eval_dir(cell, step))
-        rows.append({"step": step, "success": success, "n_episodes": n})
+    """Collect every evaluated checkpoint of one run and pick the best by success, as the seed's protocol does.
+
+    Ties (e.g. every checkpoint at 0%) go to the higher subtask progress, then to the later checkpoint.
+    """
+    rows = [{"step": step, **read_eval(plan.eval_dir(cell, step))} for step, _ in plan.checkpoints(cell)]
     if not rows:
         raise RuntimeError(f"no evaluated checkpoint for {cell}; did training save any (save_freq)?")
-    best = max(rows, key=lambda r: (r["success"], r["step"]))
+    best = max(rows, key=lambda r: (r["success"], r["subgoals"], r["step"]))
     return {
         "method": cell.method,
         "task": cell.task,
         "seed": cell.seed,
         "success": best["success"],
+        "subgoals": best["subgoals"],
         "best_step": best["step"],
         "n_episodes": best["n_episodes"],
         "checkpoints": rows,

@@ -1,4 +1,8 @@
-"""The results table: mean +- std over seeds of each (method, task) cell's best-checkpoint success rate."""
+"""The results tables: mean +- std over seeds of each (method, task) cell's best checkpoint.
+
+Two metrics: the seed's binary success rate, and subtask progress (mean fraction of the task's goals reached in a
+rollout), which still separates methods when every success rate is 0.
+"""
 
 from __future__ import annotations
 
@@ -24,8 +28,19 @@ def _order(methods: set[str]) -> list[str]:
     return [m for m in METHODS if m in methods] + sorted(methods - set(METHODS))
 
 
-def markdown_table(cells: dict[tuple[str, str], list[dict]]) -> str:
-    """Rows: methods; columns: tasks and their average; entries: success % mean +- std (population) [seeds]."""
+METRICS = {
+    "success": "Success rate (%)",
+    "subgoals": "Subtask progress (% of the task's goals reached)",
+}
+
+
+def _scores(runs: list[dict], metric: str) -> np.ndarray:
+    """Percent scores of the runs that recorded `metric` (cells from before subtask progress existed lack it)."""
+    return 100.0 * np.array([r[metric] for r in runs if metric in r])
+
+
+def markdown_table(cells: dict[tuple[str, str], list[dict]], metric: str = "success") -> str:
+    """Rows: methods; columns: tasks and their average; entries: metric % mean +- std (population) (seeds)."""
     if not cells:
         return "_No finished cells yet._\n"
     methods = _order({m for m, _ in cells})
@@ -34,25 +49,30 @@ def markdown_table(cells: dict[tuple[str, str], list[dict]]) -> str:
     for method in methods:
         row, means = [], []
         for task in tasks:
-            runs = cells.get((method, task), [])
-            if not runs:
+            scores = _scores(cells.get((method, task), []), metric)
+            if not scores.size:
                 row.append("—")
                 continue
-            scores = 100.0 * np.array([r["success"] for r in runs])
             means.append(scores.mean())
-            row.append(f"{scores.mean():.1f} ± {scores.std():.1f} ({len(runs)})")
+            row.append(f"{scores.mean():.1f} ± {scores.std():.1f} ({scores.size})")
         average = f"{np.mean(means):.1f}" if len(means) == len(tasks) else "—"
         lines.append(f"| {method} | " + " | ".join(row) + f" | {average} |")
     n_eps = sorted({r["n_episodes"] for runs in cells.values() for r in runs})
     lines.append("")
     lines.append(
-        f"Success rate (%) of the best evaluated checkpoint per seed, mean ± std over seeds (seed count in "
-        f"parentheses); {'/'.join(map(str, n_eps))} rollouts per checkpoint."
+        f"{METRICS[metric]} of the best evaluated checkpoint per seed (highest success, ties to higher progress), "
+        f"mean ± std over seeds (seed count in parentheses); {'/'.join(map(str, n_eps))} rollouts per checkpoint."
     )
     return "\n".join(lines) + "\n"
 
 
+def markdown_report(cells: dict[tuple[str, str], list[dict]]) -> str:
+    """Both tables, success first (the seed's metric)."""
+    return "\n".join(f"### {METRICS[m]}\n\n{markdown_table(cells, m)}" for m in METRICS)
+
+
 def bar_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> None:
+    """One panel per metric; bars are methods grouped by task, error bars the std over seeds."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -61,20 +81,21 @@ def bar_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> None:
     methods = _order({m for m, _ in cells})
     tasks = sorted({t for _, t in cells})
     width = 0.8 / max(1, len(methods))
-    fig, ax = plt.subplots(figsize=(1.6 + 1.4 * len(tasks) * max(1, len(methods)) * 0.35, 3.6))
-    for i, method in enumerate(methods):
-        means, stds = [], []
-        for task in tasks:
-            scores = 100.0 * np.array([r["success"] for r in cells.get((method, task), [])])
-            means.append(scores.mean() if scores.size else 0.0)  # a missing cell draws no bar
-            stds.append(scores.std() if scores.size else 0.0)
-        xs = np.arange(len(tasks)) + (i - (len(methods) - 1) / 2) * width
-        ax.bar(xs, means, width, yerr=stds, capsize=2, label=method)
-    ax.set_xticks(np.arange(len(tasks)), tasks)
-    ax.set_ylabel("success rate (%)")
-    ax.set_ylim(0, 100)
-    ax.legend(fontsize=7, ncols=2)
-    ax.set_title("Panda kitchen: best checkpoint per seed, mean ± std")
+    fig, axes = plt.subplots(1, len(METRICS), figsize=(2 * (1.6 + 0.5 * len(tasks) * max(1, len(methods))), 3.8))
+    for ax, (metric, label) in zip(axes, METRICS.items(), strict=True):
+        for i, method in enumerate(methods):
+            means, stds = [], []
+            for task in tasks:
+                scores = _scores(cells.get((method, task), []), metric)
+                means.append(scores.mean() if scores.size else 0.0)  # a missing cell draws no bar
+                stds.append(scores.std() if scores.size else 0.0)
+            xs = np.arange(len(tasks)) + (i - (len(methods) - 1) / 2) * width
+            ax.bar(xs, means, width, yerr=stds, capsize=2, label=method)
+        ax.set_xticks(np.arange(len(tasks)), tasks)
+        ax.set_ylabel(label.replace(" (", "\n("))
+        ax.set_ylim(0, 100)
+    axes[0].legend(fontsize=7, ncols=2)
+    fig.suptitle("Panda kitchen: best checkpoint per seed, mean ± std over seeds")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.tmp.png")

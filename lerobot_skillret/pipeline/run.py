@@ -21,7 +21,7 @@ import yaml
 from lerobot_skillret.pipeline.config import PipelineConfig
 from lerobot_skillret.pipeline.plan import RETRIEVAL_MODE, SKILLS_FROM_PRIOR, Cell, Plan
 from lerobot_skillret.pipeline.protocol import publish_cell, summarise_cell
-from lerobot_skillret.pipeline.results import bar_plot, collect, markdown_table
+from lerobot_skillret.pipeline.results import bar_plot, collect, markdown_report
 from lerobot_skillret.pipeline.stages import StageRunner
 
 log = logging.getLogger("skillret.pipeline")
@@ -47,11 +47,12 @@ def run_cell(plan: Plan, runner: StageRunner, cell: Cell, results_dir: Path | No
     summary = summarise_cell(plan, cell, runner.timing(train.name), time.monotonic() - start)
     publish_cell(plan, cell, summary, results_dir)
     log.info(
-        "[cell] %s/%s/seed%d: success %.2f (best of %d checkpoints, step %d)",
+        "[cell] %s/%s/seed%d: success %.2f, subtask progress %.2f (best of %d checkpoints, step %d)",
         cell.method,
         cell.task,
         cell.seed,
         summary["success"],
+        summary["subgoals"],
         len(summary["checkpoints"]),
         summary["best_step"],
     )
@@ -79,7 +80,7 @@ def run(cfg: PipelineConfig) -> Path:
             for method in cfg.methods:
                 run_cell(plan, runner, Cell(method, task, seed), results_dir)
     cells = collect_cells(plan)
-    table = markdown_table(cells)
+    table = markdown_report(cells)
     table_path = plan.root / "results.md"
     table_path.write_text(table)
     bar_plot(cells, plan.root / "results.png")
@@ -142,7 +143,7 @@ def main(argv: list[str] | None = None) -> None:
         if not args.results.is_dir():
             parser.exit(2, f"skillret-pipeline: {args.results} does not exist: no finished cells yet.\n")
         cells = collect(args.results)
-        table = markdown_table(cells)
+        table = markdown_report(cells)
         (args.results / "results.md").write_text(table)
         bar_plot(cells, args.results / "results.png")
         print(table)

@@ -3,17 +3,22 @@
 Each stage's command writes into a `.partial` path; only a command that exits 0 gets its partial path renamed to
 the final artifact. Re-running the pipeline skips every stage whose artifact exists and restarts any other from
 scratch, so killing the pipeline at any moment loses at most the stage in flight.
+
+Several pipeline processes may share one output folder (e.g. one per CPU core, each with its own methods): a stage
+is built under an exclusive file lock, so a second process waits for it and then skips it.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import logging
 import os
 import shutil
 import subprocess
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,6 +49,18 @@ def _remove(path: Path) -> None:
         path.unlink()
 
 
+@contextmanager
+def file_lock(path: Path) -> Iterator[None]:
+    """Exclusive advisory lock on `path` (created if missing); released when the holder exits or is killed."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
 def write_json_atomic(path: Path, payload: object) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp")
@@ -64,9 +81,10 @@ class StageRunner:
         return self.logs / (stage.name.replace("/", "__") + ".log")
 
     def _record_time(self, stage: Stage, seconds: float) -> None:
-        timings = json.loads(self.timings_path.read_text()) if self.timings_path.exists() else {}
-        timings[stage.name] = round(seconds, 1)
-        write_json_atomic(self.timings_path, timings)
+        with file_lock(self.timings_path.with_name(".timings.lock")):
+            timings = json.loads(self.timings_path.read_text()) if self.timings_path.exists() else {}
+            timings[stage.name] = round(seconds, 1)
+            write_json_atomic(self.timings_path, timings)
 
     def timing(self, name: str) -> float | None:
         if not self.timings_path.exists():
@@ -74,7 +92,11 @@ class StageRunner:
         return json.loads(self.timings_path.read_text()).get(name)
 
     def run(self, stage: Stage) -> bool:
-        """Run `stage` unless its artifact exists; return True if it ran."""
+        """Run `stage` unless its artifact exists (perhaps built by another process meanwhile); True if it ran."""
+        with file_lock(stage.output.with_name(f".{stage.output.name}.lock")):
+            return self._run_locked(stage)
+
+    def _run_locked(self, stage: Stage) -> bool:
         if stage.done():
             log.info("[skip] %s (exists: %s)", stage.name, stage.output)
             return False
