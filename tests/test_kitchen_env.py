@@ -73,3 +73,44 @@ def test_reset_is_reproducible_by_seed():
     assert np.array_equal(a["environment_state"], b["environment_state"])
     assert not np.array_equal(a["environment_state"], c["environment_state"])
     env.close()
+
+
+def test_reward_is_the_fraction_of_goals_met():
+    """Replaying a scripted demo through the env: the reward climbs 0 -> 1/3 -> 2/3 -> 1, and 1 only on success."""
+    from lerobot_skillret.kitchen.expert import run_expert
+    from lerobot_skillret.kitchen.gym_env import KitchenEnv
+    from lerobot_skillret.kitchen.primitives import Driver
+
+    env = KitchenEnv("breakfast")
+    env.reset(seed=3)
+    actions: list[np.ndarray] = []
+    driver = Driver(env.scene, np.random.default_rng(0), on_step=lambda action, _label: actions.append(action))
+    assert run_expert(driver, env._task)
+    env.reset(seed=3)
+    rewards, terminated = [], False
+    for action in actions:
+        _obs, reward, terminated, _truncated, info = env.step(action)
+        rewards.append(reward)
+        if terminated:
+            break
+    assert terminated and info["is_success"] and rewards[-1] == 1.0
+    assert sorted(set(rewards)) == pytest.approx([0.0, 1 / 3, 2 / 3, 1.0])
+    assert all(r < 1.0 for r in rewards[:-1])
+    env.close()
+
+
+def test_render_stride_reuses_frames_between_renders():
+    from lerobot_skillret.kitchen.gym_env import KitchenEnv
+
+    with pytest.raises(ValueError, match="render_stride"):
+        KitchenEnv("breakfast", render_stride=0)
+    env = KitchenEnv("breakfast", render_stride=3)
+    env.reset(seed=0)
+    first = env.render()
+    env.step(np.zeros(7, dtype=np.float32))
+    assert env.render() is first  # step 1: the cached frame
+    env.step(np.zeros(7, dtype=np.float32))
+    env.step(np.zeros(7, dtype=np.float32))
+    assert env.render() is not first  # step 3: a fresh frame
+    assert PandaKitchenEnv(render_stride=3).gym_kwargs["render_stride"] == 3
+    env.close()

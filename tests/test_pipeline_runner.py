@@ -15,7 +15,8 @@ import pytest
 
 from lerobot_skillret.pipeline.config import PipelineConfig, RetrievalSpec
 from lerobot_skillret.pipeline.plan import Cell, Plan
-from lerobot_skillret.pipeline.results import bar_plot, collect, markdown_table
+from lerobot_skillret.pipeline.protocol import summarise_cell
+from lerobot_skillret.pipeline.results import bar_plot, collect, markdown_report, markdown_table
 from lerobot_skillret.pipeline.stages import Stage, StageRunner
 
 
@@ -44,6 +45,24 @@ def test_stage_publishes_only_on_success_and_skips_when_done(tmp_path: Path) -> 
     with pytest.raises(RuntimeError, match="stage bad failed \\(exit code 1\\)"):
         runner.run(bad)
     assert not bad.output.exists()
+
+
+def test_two_runners_sharing_a_folder_build_a_stage_once(tmp_path: Path) -> None:
+    """Two pipeline processes on one output folder: the second waits for the stage lock, then skips the stage."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    counter = tmp_path / "runs.txt"
+
+    def stage() -> Stage:
+        s = writer_stage(tmp_path, "shared", sleep=1.0)
+        s.command[-1] = f"open({str(counter)!r}, 'a').write('x')\n" + s.command[-1]
+        return s
+
+    runners = [StageRunner(tmp_path / "out") for _ in range(2)]
+    with ThreadPoolExecutor(2) as pool:
+        ran = sorted(pool.map(lambda r: r.run(stage()), runners))
+    assert ran == [False, True] and counter.read_text() == "x"
+    assert sorted(p.name for p in (tmp_path / "out" / "shared").iterdir()) == ["a.txt", "b.txt"]
 
 
 def test_killed_run_leaves_no_artifact_and_reruns_cleanly(tmp_path: Path) -> None:
@@ -116,10 +135,12 @@ def test_plan_wires_each_ablation(tmp_path: Path) -> None:
     assert "--fraction=0.05" in plan.retrieval_stage("cook", "default", 0).command
 
 
-def _cell(root: Path, method: str, task: str, seed: int, success: float) -> None:
+def _cell(root: Path, method: str, task: str, seed: int, success: float, subgoals: float | None = None) -> None:
     path = root / method / task / f"seed{seed}" / "cell.json"
     path.parent.mkdir(parents=True)
     payload = {"method": method, "task": task, "seed": seed, "success": success, "n_episodes": 10}
+    if subgoals is not None:
+        payload["subgoals"] = subgoals
     path.write_text(json.dumps(payload))
 
 
@@ -135,3 +156,27 @@ def test_results_table_is_mean_and_std_over_seeds(tmp_path: Path) -> None:
     assert lines[3] == "| act | — | 20.0 ± 0.0 (1) | — |"
     bar_plot(collect(tmp_path), tmp_path / "plot.png")
     assert (tmp_path / "plot.png").stat().st_size > 1000
+
+
+def test_report_has_a_subtask_progress_table(tmp_path: Path) -> None:
+    _cell(tmp_path, "skillret", "cook", 0, 0.0, subgoals=0.25)
+    _cell(tmp_path, "skillret", "cook", 1, 0.0, subgoals=0.75)
+    _cell(tmp_path, "act", "cook", 0, 0.0)  # summarised before progress was recorded
+    report = markdown_report(collect(tmp_path))
+    success, progress = report.split("### Subtask progress")
+    assert "| skillret | 0.0 ± 0.0 (2) | 0.0 |" in success
+    assert "| skillret | 50.0 ± 25.0 (2) | 50.0 |" in progress and "| act | — | — |" in progress
+
+
+def test_best_checkpoint_ties_go_to_higher_progress(tmp_path: Path) -> None:
+    """Seed C.3 picks the best success rate; with every checkpoint at 0% the one that got further counts."""
+    cfg = PipelineConfig(output_dir=str(tmp_path), tasks=["cook"], methods=["no_retrieval"], seeds=[0])
+    plan, cell = Plan(cfg), Cell("no_retrieval", "cook", 0)
+    for step, progress in [(500, 0.5), (1000, 0.25)]:
+        (plan.train_dir(cell) / "checkpoints" / str(step) / "pretrained_model").mkdir(parents=True)
+        overall = {"pc_success": 0.0, "avg_max_reward": progress, "n_episodes": 10}
+        info = plan.eval_dir(cell, step) / "eval_info.json"
+        info.parent.mkdir(parents=True)
+        info.write_text(json.dumps({"overall": overall}))
+    summary = summarise_cell(plan, cell, train_seconds=1.0, eval_seconds=2.0)
+    assert (summary["best_step"], summary["success"], summary["subgoals"]) == (500, 0.0, 0.5)
