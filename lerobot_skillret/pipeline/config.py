@@ -68,6 +68,7 @@ class PipelineConfig:
     methods: list[str] = field(default_factory=lambda: ["skillret"])
     results_dir: str | None = None  # where finished cells' raw eval JSONs are copied (e.g. benchmarks/results)
     threads: int | None = None  # OMP_NUM_THREADS of every stage (1 avoids oversubscription on a shared machine)
+    jobs: int = 1  # cells run at once (one core each with threads: 1); shared stages are built once, under a lock
     data: DataSpec = field(default_factory=DataSpec)
     skills: TrainSpec = field(default_factory=TrainSpec)  # stage 1 (shared by tasks; one per seed)
     policy: TrainSpec = field(default_factory=TrainSpec)  # stage 2 (one per method, task and seed)
@@ -97,6 +98,8 @@ class PipelineConfig:
                 "pipeline config: `data.cameras: true` is not supported by the pipeline yet (retrieval and the "
                 "cpu policy config read low-dim windows only); train camera policies with lerobot-train directly."
             )
+        if self.jobs < 1:
+            raise ValueError(f"pipeline config: `jobs` must be >= 1 (got {self.jobs}); use the number of cores.")
         if not self.tasks or not self.seeds:
             raise ValueError("pipeline config: `tasks` and `seeds` must each name at least one entry.")
         if self.eval.batch_size > self.eval.n_episodes:

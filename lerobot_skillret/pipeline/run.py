@@ -14,6 +14,7 @@ import json
 import logging
 import os
 import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 import yaml
@@ -22,9 +23,18 @@ from lerobot_skillret.pipeline.config import PipelineConfig
 from lerobot_skillret.pipeline.plan import RETRIEVAL_MODE, SKILLS_FROM_PRIOR, Cell, Plan
 from lerobot_skillret.pipeline.protocol import publish_cell, summarise_cell
 from lerobot_skillret.pipeline.results import bar_plot, collect, markdown_report
-from lerobot_skillret.pipeline.stages import StageRunner
+from lerobot_skillret.pipeline.stages import Stage, StageRunner
 
 log = logging.getLogger("skillret.pipeline")
+
+
+def prerequisites(plan: Plan, cell: Cell) -> list[Stage]:
+    """Stages shared between cells that `cell` needs first: stage-1 skills on the prior, ACT's prior pre-training."""
+    if cell.method in SKILLS_FROM_PRIOR:
+        return [plan.skills_stage(cell.seed)]
+    if cell.method == "act_ft":
+        return [plan.act_prior_stage(cell.seed)]
+    return []
 
 
 def run_cell(plan: Plan, runner: StageRunner, cell: Cell, results_dir: Path | None) -> dict:
@@ -34,6 +44,8 @@ def run_cell(plan: Plan, runner: StageRunner, cell: Cell, results_dir: Path | No
         if results_dir is not None and not plan.published_dir(results_dir, cell).exists():
             publish_cell(plan, cell, summary, results_dir)  # results_dir was added after the cell finished
         return summary
+    for stage in prerequisites(plan, cell):
+        runner.run(stage)  # skipped when built already; waits on its lock while another job builds it
     if cell.method == "no_prior":
         runner.run(plan.skills_stage(cell.seed, cell.task))
     mode = RETRIEVAL_MODE.get(cell.method)
@@ -71,14 +83,7 @@ def run(cfg: PipelineConfig) -> Path:
     start = time.monotonic()
     for stage in plan.data_stages():
         runner.run(stage)
-    for seed in cfg.seeds:
-        if any(m in SKILLS_FROM_PRIOR for m in cfg.methods):
-            runner.run(plan.skills_stage(seed))
-        if "act_ft" in cfg.methods:
-            runner.run(plan.act_prior_stage(seed))
-        for task in cfg.tasks:
-            for method in cfg.methods:
-                run_cell(plan, runner, Cell(method, task, seed), results_dir)
+    run_jobs(plan, runner, results_dir, cfg.jobs)
     cells = collect_cells(plan)
     table = markdown_report(cells)
     table_path = plan.root / "results.md"
@@ -87,6 +92,26 @@ def run(cfg: PipelineConfig) -> Path:
     print(table)
     log.info("pipeline finished in %.1f min; table: %s", (time.monotonic() - start) / 60, table_path)
     return table_path
+
+
+def run_jobs(plan: Plan, runner: StageRunner, results_dir: Path | None, jobs: int) -> None:
+    """Shared stages first, then every cell, `jobs` at a time; the first failure cancels what has not started.
+
+    Cells that need no shared stage (LeRobot baselines) are queued first, so they use the other cores while
+    stage 1 trains.
+    """
+    cells = sorted(plan.cells(), key=lambda c: (c.seed, bool(prerequisites(plan, c))))
+    shared = {stage.name: stage for cell in cells for stage in prerequisites(plan, cell)}
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(runner.run, stage) for stage in shared.values()]
+        futures += [pool.submit(run_cell, plan, runner, cell, results_dir) for cell in cells]
+        try:
+            for future in as_completed(futures):
+                future.result()
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
 
 
 def collect_cells(plan: Plan) -> dict[tuple[str, str], list[dict]]:
