@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
 from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from policy_fixtures import (
     PRIOR_REPO,
@@ -23,6 +23,7 @@ from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
 from lerobot_skillret.policy.latent_policy import RETRIEVED_ID, TARGET_ID
 from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
 from lerobot_skillret.policy.networks import ObservationEncoder, center_crop, random_crop
+from lerobot_skillret.policy.normalization import SkillNormalizer
 from lerobot_skillret.policy.processor_skillret import make_skillret_pre_post_processors
 from lerobot_skillret.retrieval.schema import RetrievalResult
 
@@ -421,3 +422,15 @@ def test_training_windows_repeat_under_the_same_seed(prior_root):
 
     assert first_loss(3) == first_loss(3)
     assert first_loss(3) != first_loss(4)
+
+
+def test_min_max_margin_keeps_the_data_range_inside_tanh():
+    """With margin m the action range maps onto [-(1 - m), 1 - m], and the round trip is exact."""
+    features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(2,))}
+    stats = {"action": {"min": [-1.0, 0.0], "max": [1.0, 4.0]}}
+    norm = SkillNormalizer(features, {"ACTION": NormalizationMode.MIN_MAX}, stats, min_max_margin=0.05)
+    extremes = torch.tensor([[-1.0, 0.0], [1.0, 4.0]])
+    assert torch.allclose(norm.normalize("action", extremes), torch.tensor([[-0.95, -0.95], [0.95, 0.95]]))
+    assert torch.allclose(norm.unnormalize("action", norm.normalize("action", extremes)), extremes)
+    with pytest.raises(ValueError, match="min_max_margin"):
+        tiny_config(min_max_margin=1.0)

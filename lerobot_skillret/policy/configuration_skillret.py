@@ -102,6 +102,9 @@ class SkillRetConfig(PreTrainedConfig):
             "ACTION": NormalizationMode.MIN_MAX,  # the decoder's tanh output lives in [-1, 1]
         }
     )
+    # MIN_MAX maps the data's range onto [-(1 - margin), 1 - margin]. With 0 (the paper) actions a scripted expert
+    # saturates at the clip bound sit where tanh's gradient vanishes and the decoder undershoots them
+    min_max_margin: float = 0.0
     # What LeRobot's processor normaliser steps apply: identity everywhere, so they stay no-ops even when
     # lerobot-train/eval override their statistics (they pass this mapping as `norm_map`).
     normalization_mapping: dict[str, NormalizationMode] = field(
@@ -135,6 +138,8 @@ class SkillRetConfig(PreTrainedConfig):
                     "skillret normalises inside the model "
                     "(see skill_normalization_mapping); the processor's mapping must stay IDENTITY",
                 )
+        if not 0.0 <= self.min_max_margin < 1.0:
+            fail("min_max_margin", self.min_max_margin, "use a value in [0, 1), e.g. 0.05")
         for kind, mode in self.skill_normalization_mapping.items():
             if NormalizationMode(mode) not in SKILL_NORMALIZATION_MODES:
                 fail("skill_normalization_mapping", {kind: mode}, f"supported modes: {SKILL_NORMALIZATION_MODES}")

@@ -60,7 +60,10 @@ class SkillRetPolicy(PreTrainedPolicy):
         action_dim = int(config.action_feature.shape[0])
 
         self.normalizer = SkillNormalizer(
-            {**features, **config.output_features}, config.skill_normalization_mapping, dataset_stats
+            {**features, **config.output_features},
+            config.skill_normalization_mapping,
+            dataset_stats,
+            min_max_margin=config.min_max_margin,
         )
         self.skills = SkillModel(config, low_dim_shapes, image_shapes, action_dim)
         self.latent_policy = LatentPolicy(config, make_observation_encoder(config, low_dim_shapes, image_shapes))

@@ -22,7 +22,10 @@ def _buffer_name(key: str) -> str:
 
 
 class SkillNormalizer(nn.Module):
-    """x_norm = (x - shift) / scale per feature, from MEAN_STD (mean, std) or MIN_MAX (to [-1, 1]) statistics.
+    """x_norm = (x - shift) / scale per feature, from MEAN_STD (mean, std) or MIN_MAX statistics.
+
+    MIN_MAX maps [min, max] onto [-(1 - margin), 1 - margin]. The margin is folded into the stored scale, so a
+    checkpoint acts the same whatever margin a later config asks for.
 
     Until statistics are set the buffers hold NaN, and `check_ready` refuses to train or act on them.
     """
@@ -32,8 +35,10 @@ class SkillNormalizer(nn.Module):
         features: Mapping[str, PolicyFeature],
         mapping: Mapping[str, NormalizationMode],
         stats: Mapping[str, Mapping[str, object]] | None = None,
+        min_max_margin: float = 0.0,
     ) -> None:
         super().__init__()
+        self.min_max_margin = min_max_margin
         self.register_buffer("device_marker", torch.empty(0), persistent=False)  # the policy's device, cheaply
         self.modes: dict[str, NormalizationMode] = {}
         for key, feature in features.items():
@@ -60,7 +65,8 @@ class SkillNormalizer(nn.Module):
             if mode is NormalizationMode.MEAN_STD:
                 shift, scale = entry["mean"], entry["std"]
             else:
-                shift, scale = (entry["max"] + entry["min"]) / 2, (entry["max"] - entry["min"]) / 2
+                shift = (entry["max"] + entry["min"]) / 2
+                scale = (entry["max"] - entry["min"]) / 2 / (1.0 - self.min_max_margin)
             getattr(self, f"{_buffer_name(key)}_shift").copy_(shift)
             getattr(self, f"{_buffer_name(key)}_scale").copy_(scale.clamp_min(MIN_SCALE))
 
