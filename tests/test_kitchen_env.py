@@ -99,6 +99,17 @@ def test_reward_is_the_fraction_of_goals_met():
     env.close()
 
 
+def test_goals_met_at_reset_earn_no_progress():
+    """cook starts with the pan on the stove: standing still scores 0, not 1/5."""
+    from lerobot_skillret.kitchen.gym_env import KitchenEnv
+
+    env = KitchenEnv("cook")
+    env.reset(seed=0)
+    assert env._task.goals_met(env.scene) == (False, False, False, True, False)
+    assert env.step(np.zeros(7, dtype=np.float32))[1] == 0.0
+    env.close()
+
+
 def test_render_stride_reuses_frames_between_renders():
     from lerobot_skillret.kitchen.gym_env import KitchenEnv
 

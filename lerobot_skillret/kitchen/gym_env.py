@@ -1,8 +1,8 @@
 """Gymnasium env for one kitchen task (`gym_panda_kitchen/<task>`), as LeRobot's eval expects it.
 
 Observations come from `observations.build_observation`; success from the task's predicates; the episode
-terminates on success and is truncated at the task's `max_steps`. The reward is the fraction of the task's goals met
-(1.0 exactly on success), so a failed rollout still reports how far it got.
+terminates on success and is truncated at the task's `max_steps`. The reward is the fraction of the goals unmet at
+reset that are met now (1.0 on success), so a failed rollout still reports how far it got.
 """
 
 from __future__ import annotations
@@ -59,6 +59,7 @@ class KitchenEnv(gym.Env):
         self.observation_space = spaces.Dict(obs_spaces)
         self.action_space = spaces.Box(-1.0, 1.0, (len(O.ACTION_NAMES),), np.float32)
         self._steps = 0
+        self._met_at_reset: tuple[bool, ...] = ()
 
     def _obs(self) -> dict:
         return O.build_observation(self.scene, self._cam, self.cameras)
@@ -68,16 +69,17 @@ class KitchenEnv(gym.Env):
         reset_scene(self.scene, self._task, self.np_random)
         self._steps = 0
         self._frame = None
+        self._met_at_reset = self._task.goals_met(self.scene)
         return self._obs(), {"is_success": False}
 
     def step(self, action):
         action = np.clip(np.asarray(action, dtype=np.float64).reshape(-1), -1.0, 1.0)
         self.scene.step(action)
         self._steps += 1
-        progress = self._task.progress(self.scene)
-        success = progress == 1.0
+        success = self._task.success(self.scene)
+        reward = 1.0 if success else self._task.progress(self.scene, self._met_at_reset)
         truncated = self._steps >= self._max_episode_steps and not success
-        return self._obs(), progress, success, truncated, {"is_success": success}
+        return self._obs(), reward, success, truncated, {"is_success": success}
 
     def render(self):
         """Video frame; with `render_stride` k a fresh frame every k steps (rendering costs ~5x a sim step)."""

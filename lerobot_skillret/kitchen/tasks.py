@@ -38,9 +38,14 @@ class Task:
     def success(self, scene: P.SceneState) -> bool:
         return all(goal(scene) for goal in self.goals)
 
-    def progress(self, scene: P.SceneState) -> float:
-        """Fraction of the goals met now: the env's reward, so lerobot-eval's `avg_max_reward` is subtask progress."""
-        return sum(goal(scene) for goal in self.goals) / len(self.goals)
+    def goals_met(self, scene: P.SceneState) -> tuple[bool, ...]:
+        return tuple(bool(goal(scene)) for goal in self.goals)
+
+    def progress(self, scene: P.SceneState, met_at_reset: tuple[bool, ...]) -> float:
+        """Fraction of the goals unmet at reset that are met now: the env's reward, so lerobot-eval's
+        `avg_max_reward` is subtask progress. Goals that hold from the start (cook's pan on the stove) earn nothing."""
+        todo = [goal for goal, met in zip(self.goals, met_at_reset, strict=True) if not met]
+        return sum(bool(goal(scene)) for goal in todo) / len(todo) if todo else 1.0
 
     def unmet(self, scene: P.SceneState) -> list[str]:
         return [goal.name for goal in self.goals if not goal(scene)]
