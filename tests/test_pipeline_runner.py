@@ -180,3 +180,28 @@ def test_best_checkpoint_ties_go_to_higher_progress(tmp_path: Path) -> None:
         info.write_text(json.dumps({"overall": overall}))
     summary = summarise_cell(plan, cell, train_seconds=1.0, eval_seconds=2.0)
     assert (summary["best_step"], summary["success"], summary["subgoals"]) == (500, 0.0, 0.5)
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_failed_shared_stage_stops_the_run_and_is_never_retried(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, jobs: int
+) -> None:
+    """Cells waiting for a shared stage that fails are cancelled, not re-run it; the stage's own error surfaces."""
+    from lerobot_skillret.pipeline import run as run_mod
+
+    counter = tmp_path / "runs.txt"
+    shared = writer_stage(tmp_path, "shared", sleep=0.5, fail=True)
+    shared.command[-1] = f"open({str(counter)!r}, 'a').write('x')\n" + shared.command[-1]
+    started: list[Cell] = []
+
+    def fake_run_cell(plan: Plan, runner: StageRunner, cell: Cell, results_dir: Path | None) -> None:
+        for stage in run_mod.prerequisites(plan, cell):
+            runner.run(stage)
+        started.append(cell)
+
+    monkeypatch.setattr(run_mod, "prerequisites", lambda plan, cell: [shared])
+    monkeypatch.setattr(run_mod, "run_cell", fake_run_cell)
+    cfg = PipelineConfig(output_dir=str(tmp_path / "out"), tasks=["breakfast", "cook"], methods=["skillret"])
+    with pytest.raises(RuntimeError, match="stage shared failed"):
+        run_mod.run_jobs(Plan(cfg), StageRunner(tmp_path / "out"), None, jobs)
+    assert counter.read_text() == "x" and started == [] and not shared.output.exists()

@@ -98,7 +98,7 @@ class PipelineConfig:
                 "pipeline config: `data.cameras: true` is not supported by the pipeline yet (retrieval and the "
                 "cpu policy config read low-dim windows only); train camera policies with lerobot-train directly."
             )
-        if self.jobs < 1:
+        if not isinstance(self.jobs, int) or isinstance(self.jobs, bool) or self.jobs < 1:
             raise ValueError(f"pipeline config: `jobs` must be >= 1 (got {self.jobs}); use the number of cores.")
         if not self.tasks or not self.seeds:
             raise ValueError("pipeline config: `tasks` and `seeds` must each name at least one entry.")

@@ -7,6 +7,7 @@ rollout), which still separates methods when every success rate is 0.
 from __future__ import annotations
 
 import json
+import os
 from collections import defaultdict
 from pathlib import Path
 
@@ -87,7 +88,7 @@ def bar_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> None:
             means, stds = [], []
             for task in tasks:
                 scores = _scores(cells.get((method, task), []), metric)
-                means.append(scores.mean() if scores.size else 0.0)  # a missing cell draws no bar
+                means.append(scores.mean() if scores.size else np.nan)  # a missing cell draws no bar
                 stds.append(scores.std() if scores.size else 0.0)
             xs = np.arange(len(tasks)) + (i - (len(methods) - 1) / 2) * width
             ax.bar(xs, means, width, yerr=stds, capsize=2, label=method)
@@ -98,7 +99,7 @@ def bar_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> None:
     fig.suptitle("Panda kitchen: best checkpoint per seed, mean ± std over seeds")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp.png")
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.png")  # one per process: several may share a folder
     fig.savefig(tmp, dpi=120)
     plt.close(fig)
     tmp.replace(path)

@@ -23,7 +23,7 @@ from lerobot_skillret.pipeline.config import PipelineConfig
 from lerobot_skillret.pipeline.plan import RETRIEVAL_MODE, SKILLS_FROM_PRIOR, Cell, Plan
 from lerobot_skillret.pipeline.protocol import publish_cell, summarise_cell
 from lerobot_skillret.pipeline.results import bar_plot, collect, markdown_report
-from lerobot_skillret.pipeline.stages import Stage, StageRunner
+from lerobot_skillret.pipeline.stages import Cancelled, Stage, StageRunner
 
 log = logging.getLogger("skillret.pipeline")
 
@@ -87,7 +87,9 @@ def run(cfg: PipelineConfig) -> Path:
     cells = collect_cells(plan)
     table = markdown_report(cells)
     table_path = plan.root / "results.md"
-    table_path.write_text(table)
+    tmp = table_path.with_name(f".results.{os.getpid()}.md")
+    tmp.write_text(table)
+    tmp.replace(table_path)
     bar_plot(cells, plan.root / "results.png")
     print(table)
     log.info("pipeline finished in %.1f min; table: %s", (time.monotonic() - start) / 60, table_path)
@@ -95,30 +97,51 @@ def run(cfg: PipelineConfig) -> Path:
 
 
 def run_jobs(plan: Plan, runner: StageRunner, results_dir: Path | None, jobs: int) -> None:
-    """Shared stages first, then every cell, `jobs` at a time; the first failure cancels what has not started.
+    """Shared stages first, then every cell, `jobs` at a time. Cells that need no shared stage (LeRobot baselines)
+    are queued before the others, so with more jobs than shared stages they run while stage 1 trains.
 
-    Cells that need no shared stage (LeRobot baselines) are queued first, so they use the other cores while
-    stage 1 trains.
+    The first failure (or Ctrl-C) is logged at once and sets `runner.cancel`: no further stage starts, stages in
+    flight finish, and the first error is raised.
     """
     cells = sorted(plan.cells(), key=lambda c: (c.seed, bool(prerequisites(plan, c))))
     shared = {stage.name: stage for cell in cells for stage in prerequisites(plan, cell)}
-    with ThreadPoolExecutor(max_workers=jobs) as pool:
-        futures = [pool.submit(runner.run, stage) for stage in shared.values()]
-        futures += [pool.submit(run_cell, plan, runner, cell, results_dir) for cell in cells]
+
+    def job(what: str, fn, *args) -> None:
+        if runner.cancel.is_set():
+            raise Cancelled(f"{what} not started")
         try:
-            for future in as_completed(futures):
-                future.result()
-        except BaseException:
-            for future in futures:
-                future.cancel()
+            fn(*args)
+        except Cancelled:
             raise
+        except BaseException as err:
+            log.error("[fail] %s: %s", what, str(err).splitlines()[0] if str(err) else type(err).__name__)
+            runner.cancel.set()
+            raise
+
+    pool = ThreadPoolExecutor(max_workers=jobs)
+    futures = [pool.submit(job, name, runner.run, stage) for name, stage in shared.items()]
+    futures += [
+        pool.submit(job, f"cell {c.method}/{c.task}/seed{c.seed}", run_cell, plan, runner, c, results_dir)
+        for c in cells
+    ]
+    try:
+        errors = [f.exception() for f in as_completed(futures)]
+    except BaseException:  # Ctrl-C while waiting: the stages in flight get SIGINT with the whole process group
+        runner.cancel.set()
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+    first = next((e for e in errors if e is not None and not isinstance(e, Cancelled)), None)
+    if first is not None:
+        raise first
 
 
 def collect_cells(plan: Plan) -> dict[tuple[str, str], list[dict]]:
+    """Every finished cell of the output folder, including those run by other processes or other method lists."""
     cells: dict[tuple[str, str], list[dict]] = {}
-    for cell in plan.cells():
-        summary = json.loads(plan.cell_path(cell).read_text())
-        cells.setdefault((cell.method, cell.task), []).append(summary)
+    for path in sorted((plan.root / "cells").glob("*/*/seed*.json")):
+        summary = json.loads(path.read_text())
+        cells.setdefault((summary["method"], summary["task"]), []).append(summary)
     return cells
 
 

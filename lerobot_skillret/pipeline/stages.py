@@ -16,6 +16,8 @@ import logging
 import os
 import shutil
 import subprocess
+import tempfile
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -49,39 +51,58 @@ def _remove(path: Path) -> None:
         path.unlink()
 
 
+class Cancelled(RuntimeError):
+    """A stage was not started because another job of the same pipeline run failed or was interrupted."""
+
+
 @contextmanager
-def file_lock(path: Path) -> Iterator[None]:
-    """Exclusive advisory lock on `path` (created if missing); released when the holder exits or is killed."""
+def file_lock(path: Path, what: str = "") -> Iterator[int]:
+    """Exclusive advisory lock on `path` (created if missing); yields its file descriptor.
+
+    Pass the descriptor to a child process (`pass_fds`) to keep the lock held until the child exits as well, even
+    if this process is killed first. Logs a line when the lock is busy, so a waiting job is not silent.
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
         try:
-            yield
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            log.info("[wait] %s is being built by another job", what or path)
+            fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield handle.fileno()
         finally:
             fcntl.flock(handle, fcntl.LOCK_UN)
 
 
 def write_json_atomic(path: Path, payload: object) -> None:
+    """Write JSON through a uniquely named temporary file, so concurrent writers never share one."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(payload, indent=2, sort_keys=True))
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    with os.fdopen(fd, "w") as handle:
+        handle.write(json.dumps(payload, indent=2, sort_keys=True))
     os.replace(tmp, path)
 
 
 class StageRunner:
-    """Runs stages in order with logs under `<output_dir>/logs/` and wall times in `<output_dir>/timings.json`."""
+    """Runs stages with logs under `<output_dir>/logs/` and wall times in `<output_dir>/timings.json`.
+
+    Thread-safe: jobs of one pipeline run share a runner. Once `cancel` is set (a job failed, or Ctrl-C), no
+    further stage starts, so a failure is never retried by a job that was waiting for the same stage.
+    """
 
     def __init__(self, output_dir: Path, env: dict[str, str] | None = None) -> None:
         self.output_dir = output_dir
         self.logs = output_dir / "logs"
         self.timings_path = output_dir / "timings.json"
         self.env = {**os.environ, **(env or {})}
+        self.cancel = threading.Event()
 
     def _log_path(self, stage: Stage) -> Path:
         return self.logs / (stage.name.replace("/", "__") + ".log")
 
     def _record_time(self, stage: Stage, seconds: float) -> None:
-        with file_lock(self.timings_path.with_name(".timings.lock")):
+        with file_lock(self.timings_path.with_name(".timings.lock"), "timings.json"):
             timings = json.loads(self.timings_path.read_text()) if self.timings_path.exists() else {}
             timings[stage.name] = round(seconds, 1)
             write_json_atomic(self.timings_path, timings)
@@ -93,10 +114,12 @@ class StageRunner:
 
     def run(self, stage: Stage) -> bool:
         """Run `stage` unless its artifact exists (perhaps built by another process meanwhile); True if it ran."""
-        with file_lock(stage.output.with_name(f".{stage.output.name}.lock")):
-            return self._run_locked(stage)
+        with file_lock(stage.output.with_name(f".{stage.output.name}.lock"), stage.name) as lock_fd:
+            return self._run_locked(stage, lock_fd)
 
-    def _run_locked(self, stage: Stage) -> bool:
+    def _run_locked(self, stage: Stage, lock_fd: int) -> bool:
+        if self.cancel.is_set():
+            raise Cancelled(f"stage {stage.name} not started: another job of this run failed or was interrupted")
         if stage.done():
             log.info("[skip] %s (exists: %s)", stage.name, stage.output)
             return False
@@ -109,7 +132,10 @@ class StageRunner:
         with log_path.open("w") as handle:
             handle.write("$ " + " ".join(stage.command) + "\n")
             handle.flush()
-            code = subprocess.run(stage.command, stdout=handle, stderr=subprocess.STDOUT, env=self.env).returncode
+            # the child inherits the lock, so a killed pipeline cannot free it while the child still writes
+            code = subprocess.run(
+                stage.command, stdout=handle, stderr=subprocess.STDOUT, env=self.env, pass_fds=(lock_fd,)
+            ).returncode
         seconds = time.monotonic() - start
         if code != 0 or not stage.partial.exists():
             tail = "".join(log_path.read_text().splitlines(keepends=True)[-25:])

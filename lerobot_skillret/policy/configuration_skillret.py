@@ -103,7 +103,8 @@ class SkillRetConfig(PreTrainedConfig):
         }
     )
     # MIN_MAX maps the data's range onto [-(1 - margin), 1 - margin]. With 0 (the paper) actions a scripted expert
-    # saturates at the clip bound sit where tanh's gradient vanishes and the decoder undershoots them
+    # saturates at the clip bound sit where tanh's gradient vanishes and the decoder undershoots them. Stage 1 only:
+    # the scale is stored with the weights, so later stages keep the stage-1 checkpoint's margin
     min_max_margin: float = 0.0
     # What LeRobot's processor normaliser steps apply: identity everywhere, so they stay no-ops even when
     # lerobot-train/eval override their statistics (they pass this mapping as `norm_map`).
