@@ -73,7 +73,7 @@ def markdown_report(cells: dict[tuple[str, str], list[dict]]) -> str:
 
 
 def bar_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> None:
-    """One panel per metric; bars are methods grouped by task, error bars the std over seeds."""
+    """One panel per metric, stacked; bars are methods grouped by task, error bars the std over seeds."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -82,7 +82,8 @@ def bar_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> None:
     methods = _order({m for m, _ in cells})
     tasks = sorted({t for _, t in cells})
     width = 0.8 / max(1, len(methods))
-    fig, axes = plt.subplots(1, len(METRICS), figsize=(2 * (1.6 + 0.5 * len(tasks) * max(1, len(methods))), 3.8))
+    width_in = 2.0 + 0.3 * len(tasks) * max(1, len(methods))
+    fig, axes = plt.subplots(len(METRICS), 1, figsize=(width_in, 3.0 * len(METRICS)), sharex=True)
     for ax, (metric, label) in zip(axes, METRICS.items(), strict=True):
         for i, method in enumerate(methods):
             means, stds = [], []
@@ -95,7 +96,7 @@ def bar_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> None:
         ax.set_xticks(np.arange(len(tasks)), tasks)
         ax.set_ylabel(label.replace(" (", "\n("))
         ax.set_ylim(0, 100)
-    axes[0].legend(fontsize=7, ncols=2)
+    axes[0].legend(fontsize=7, ncols=4)
     fig.suptitle("Panda kitchen: best checkpoint per seed, mean ± std over seeds")
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
