@@ -87,8 +87,9 @@ def write_json_atomic(path: Path, payload: object) -> None:
 class StageRunner:
     """Runs stages with logs under `<output_dir>/logs/` and wall times in `<output_dir>/timings.json`.
 
-    Thread-safe: jobs of one pipeline run share a runner. Once `cancel` is set (a job failed, or Ctrl-C), no
-    further stage starts, so a failure is never retried by a job that was waiting for the same stage.
+    Thread-safe: jobs of one pipeline run share a runner. A failed stage sets `cancel` before releasing its lock;
+    once it is set (a stage or job failed, or Ctrl-C) no further stage starts, so a failure is never retried by a
+    job that was waiting for the same stage.
     """
 
     def __init__(self, output_dir: Path, env: dict[str, str] | None = None) -> None:
@@ -115,7 +116,13 @@ class StageRunner:
     def run(self, stage: Stage) -> bool:
         """Run `stage` unless its artifact exists (perhaps built by another process meanwhile); True if it ran."""
         with file_lock(stage.output.with_name(f".{stage.output.name}.lock"), stage.name) as lock_fd:
-            return self._run_locked(stage, lock_fd)
+            try:
+                return self._run_locked(stage, lock_fd)
+            except Cancelled:
+                raise
+            except BaseException:
+                self.cancel.set()  # before the lock is released: a job waiting for this stage must not retry it
+                raise
 
     def _run_locked(self, stage: Stage, lock_fd: int) -> bool:
         if self.cancel.is_set():
