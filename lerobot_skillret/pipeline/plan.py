@@ -272,6 +272,8 @@ class Plan:
         """Where a finished cell's raw eval JSONs and summary are kept in the repository."""
         return results_dir / cell.method / cell.task / f"seed{cell.seed}"
 
+    CELL_SUMMARIES = "cells/*/*/seed*.json"  # every `cell_path` below `root`
+
     def cell_path(self, cell: Cell) -> Path:
         return self.root / "cells" / cell.method / cell.task / f"seed{cell.seed}.json"
 

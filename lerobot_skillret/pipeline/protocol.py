@@ -7,8 +7,8 @@ import shutil
 from pathlib import Path
 from typing import Any
 
+from lerobot_skillret.files import write_json_atomic
 from lerobot_skillret.pipeline.plan import Cell, Plan
-from lerobot_skillret.pipeline.stages import write_json_atomic
 
 
 def read_eval(eval_dir: Path) -> dict[str, float | int]:

@@ -7,19 +7,21 @@ rollout), which still separates methods when every success rate is 0.
 from __future__ import annotations
 
 import json
-import os
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
+from lerobot_skillret.files import write_atomic, write_text_atomic
 from lerobot_skillret.pipeline.config import METHODS
 
+PUBLISHED_CELLS = "*/*/seed*/cell.json"  # results_dir layout: <method>/<task>/seed<s>/cell.json
 
-def collect(results_dir: Path) -> dict[tuple[str, str], list[dict]]:
-    """Every `cell.json` under results_dir, grouped by (method, task)."""
+
+def collect(folder: Path, pattern: str = PUBLISHED_CELLS) -> dict[tuple[str, str], list[dict]]:
+    """Every cell summary under `folder` matching `pattern`, grouped by (method, task)."""
     cells: dict[tuple[str, str], list[dict]] = defaultdict(list)
-    for path in sorted(results_dir.glob("*/*/seed*/cell.json")):
+    for path in sorted(folder.glob(pattern)):
         cell = json.loads(path.read_text())
         cells[(cell["method"], cell["task"])].append(cell)
     return dict(cells)
@@ -99,8 +101,13 @@ def bar_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> None:
     axes[0].legend(fontsize=7, ncols=4)
     fig.suptitle("Panda kitchen: best checkpoint per seed, mean ± std over seeds")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.png")  # one per process: several may share a folder
-    fig.savefig(tmp, dpi=120)
+    write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=120, format="png"))
     plt.close(fig)
-    tmp.replace(path)
+
+
+def write_report(cells: dict[tuple[str, str], list[dict]], folder: Path) -> str:
+    """`results.md` (both tables) and `results.png` in `folder`; returns the markdown."""
+    report = markdown_report(cells)
+    write_text_atomic(folder / "results.md", report)
+    bar_plot(cells, folder / "results.png")
+    return report

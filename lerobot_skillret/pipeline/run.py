@@ -22,7 +22,7 @@ import yaml
 from lerobot_skillret.pipeline.config import PipelineConfig
 from lerobot_skillret.pipeline.plan import RETRIEVAL_MODE, SKILLS_FROM_PRIOR, Cell, Plan
 from lerobot_skillret.pipeline.protocol import publish_cell, summarise_cell
-from lerobot_skillret.pipeline.results import bar_plot, collect, markdown_report
+from lerobot_skillret.pipeline.results import collect, write_report
 from lerobot_skillret.pipeline.stages import Cancelled, Stage, StageRunner
 
 log = logging.getLogger("skillret.pipeline")
@@ -84,14 +84,9 @@ def run(cfg: PipelineConfig) -> Path:
     for stage in plan.data_stages():
         runner.run(stage)
     run_jobs(plan, runner, results_dir, cfg.jobs)
-    cells = collect_cells(plan)
-    table = markdown_report(cells)
+    # every finished cell of the folder, including those of other processes or other method lists
+    print(write_report(collect(plan.root, Plan.CELL_SUMMARIES), plan.root))
     table_path = plan.root / "results.md"
-    tmp = table_path.with_name(f".results.{os.getpid()}.md")
-    tmp.write_text(table)
-    tmp.replace(table_path)
-    bar_plot(cells, plan.root / "results.png")
-    print(table)
     log.info("pipeline finished in %.1f min; table: %s", (time.monotonic() - start) / 60, table_path)
     return table_path
 
@@ -134,15 +129,6 @@ def run_jobs(plan: Plan, runner: StageRunner, results_dir: Path | None, jobs: in
     first = next((e for e in errors if e is not None and not isinstance(e, Cancelled)), None)
     if first is not None:
         raise first
-
-
-def collect_cells(plan: Plan) -> dict[tuple[str, str], list[dict]]:
-    """Every finished cell of the output folder, including those run by other processes or other method lists."""
-    cells: dict[tuple[str, str], list[dict]] = {}
-    for path in sorted((plan.root / "cells").glob("*/*/seed*.json")):
-        summary = json.loads(path.read_text())
-        cells.setdefault((summary["method"], summary["task"]), []).append(summary)
-    return cells
 
 
 def _log_to_stderr() -> None:
@@ -190,11 +176,7 @@ def main(argv: list[str] | None = None) -> None:
     else:
         if not args.results.is_dir():
             parser.exit(2, f"skillret-pipeline: {args.results} does not exist: no finished cells yet.\n")
-        cells = collect(args.results)
-        table = markdown_report(cells)
-        (args.results / "results.md").write_text(table)
-        bar_plot(cells, args.results / "results.png")
-        print(table)
+        print(write_report(collect(args.results), args.results))
 
 
 if __name__ == "__main__":

@@ -16,13 +16,14 @@ import logging
 import os
 import shutil
 import subprocess
-import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from lerobot_skillret.files import write_json_atomic
 
 log = logging.getLogger("skillret.pipeline")
 
@@ -73,15 +74,6 @@ def file_lock(path: Path, what: str = "") -> Iterator[int]:
             yield handle.fileno()
         finally:
             fcntl.flock(handle, fcntl.LOCK_UN)
-
-
-def write_json_atomic(path: Path, payload: object) -> None:
-    """Write JSON through a uniquely named temporary file, so concurrent writers never share one."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    with os.fdopen(fd, "w") as handle:
-        handle.write(json.dumps(payload, indent=2, sort_keys=True))
-    os.replace(tmp, path)
 
 
 class StageRunner:

@@ -15,15 +15,14 @@ own share of those primitives (what uniform random retrieval gets in expectation
 from __future__ import annotations
 
 import json
-import os
-import tempfile
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import Tensor
 
+from lerobot_skillret.files import write_atomic
 from lerobot_skillret.retrieval.schema import RetrievalResult
 
 if TYPE_CHECKING:
@@ -188,19 +187,6 @@ def _primitive_shares(inputs: ReportInputs) -> list[dict[str, Any]]:
 # --- files --------------------------------------------------------------------------------------------------
 
 
-def _atomic(path: Path, write: Callable[[str], None]) -> Path:
-    """Write through a temporary file beside `path`, then rename it into place."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-    return path
-
-
 def write_report(report_dir: str | Path, result: RetrievalResult, inputs: ReportInputs | None) -> dict[str, Path]:
     """Write summary.json and, when anything was scored, the three plots. Returns the written paths."""
     report_dir = Path(report_dir)
@@ -211,7 +197,7 @@ def write_report(report_dir: str | Path, result: RetrievalResult, inputs: Report
     def dump(tmp: str) -> None:
         Path(tmp).write_text(json.dumps(summary, indent=1, allow_nan=True) + "\n")
 
-    _atomic(paths["summary"], dump)
+    write_atomic(paths["summary"], dump)
     if inputs is None or inputs.selection.distance.numel() == 0:
         return paths
     import matplotlib
@@ -230,7 +216,7 @@ def _save_figure(path: Path, figure) -> Path:
     import matplotlib.pyplot as plt
 
     try:
-        return _atomic(path, lambda tmp: figure.savefig(tmp, dpi=110, bbox_inches="tight", format="png"))
+        return write_atomic(path, lambda tmp: figure.savefig(tmp, dpi=110, bbox_inches="tight", format="png"))
     finally:
         plt.close(figure)
 

@@ -26,8 +26,6 @@ file only says which windows. An empty selection (K = 0) is valid and means "no 
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -35,6 +33,8 @@ from typing import Any
 import torch
 from safetensors import safe_open
 from safetensors.torch import load_file, save_file
+
+from lerobot_skillret.files import write_atomic
 
 SCHEMA_VERSION = "1"
 
@@ -67,8 +67,6 @@ class RetrievalResult:
 
     def save(self, path: str | Path) -> Path:
         """Write to a temporary file beside `path`, then rename: a crash never leaves a half-written file."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         tensors = {
             "prior_index": self.prior_index.to(torch.int64).contiguous(),
             "distance": self.distance.to(torch.float32).contiguous(),
@@ -81,15 +79,7 @@ class RetrievalResult:
             "prior_fingerprint": self.prior_fingerprint,
             "target_fingerprint": self.target_fingerprint,
         }
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-        os.close(fd)
-        try:
-            save_file(tensors, tmp, metadata=metadata)
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.remove(tmp)
-        return path
+        return write_atomic(path, lambda tmp: save_file(tensors, tmp, metadata=metadata))
 
     @classmethod
     def load(cls, path: str | Path) -> RetrievalResult:
