@@ -21,7 +21,8 @@ PIPELINE = [str(Path(sys.executable).parent / "skillret-pipeline"), "run", "--co
 @pytest.mark.slow
 def test_smoke_pipeline_survives_a_kill_and_produces_every_artifact(tmp_path: Path) -> None:
     out = tmp_path / "run"
-    command = [*PIPELINE, f"output_dir={out}"]
+    published = tmp_path / "published"
+    command = [*PIPELINE, f"output_dir={out}", f"results_dir={published}"]
     env = {**os.environ, "MUJOCO_GL": "egl", "HF_HUB_OFFLINE": "1"}
 
     # Kill the whole process group once stage 1 (skill pre-training) is under way.
@@ -59,3 +60,5 @@ def test_smoke_pipeline_survives_a_kill_and_produces_every_artifact(tmp_path: Pa
     cell = json.loads((out / "cells" / "skillret" / "breakfast" / "seed0.json").read_text())
     assert 0.0 <= cell["success"] <= 1.0 and cell["best_step"] in (2, 4) and cell["n_episodes"] == 1
     assert "| skillret |" in (out / "results.md").read_text() and (out / "results.png").is_file()
+    kept = {p.name for p in (published / "skillret" / "breakfast" / "seed0").iterdir()}
+    assert kept == {"cell.json", "eval_step2.json", "eval_step4.json", "retrieval_summary.json"}

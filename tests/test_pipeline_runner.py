@@ -117,6 +117,12 @@ def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
         PipelineConfig.from_yaml(path)
     cfg = PipelineConfig.from_yaml(path, {"eval.batch_size": 1, "policy.args": {"policy.horizon": 5}})
     assert cfg.eval.batch_size == 1 and cfg.policy.args == {"policy.horizon": 5}
+    path.write_text("eval: {max_checkpoints: 0}\n")  # would slice [-0:], i.e. evaluate every checkpoint
+    with pytest.raises(ValueError, match=r"`eval\.max_checkpoints` must be an integer >= 1 \(got 0\)"):
+        PipelineConfig.from_yaml(path)
+    path.write_text("skills: {config_path: configs/policy/cpu.jsn}\n")
+    with pytest.raises(FileNotFoundError, match=r"`skills\.config_path` configs/policy/cpu\.jsn not found"):
+        PipelineConfig.from_yaml(path)
 
 
 def test_plan_wires_each_ablation(tmp_path: Path) -> None:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import json
+import math
 
 import pytest
 import torch
@@ -48,4 +48,11 @@ def test_refusals_are_clear(tmp_path):
     for name, key in (("prior dataset", "prior"), ("target dataset", "target"), ("stage-1 checkpoint", "checkpoint")):
         with pytest.raises(ValueError, match=f"different {name}"):
             result.check_compatible(**{f"{key}_fingerprint": "other"})
-    assert json.loads(json.dumps(result.settings, allow_nan=True))["mode"] == "nearest"
+
+
+def test_settings_with_nan_survive_a_round_trip(tmp_path):
+    """An empty retrieval has no distance cut: its NaN must load back as NaN, not break the metadata JSON."""
+    result = make_result()
+    result.settings["cut"] = float("nan")
+    loaded = RetrievalResult.load(result.save(tmp_path / "nan.safetensors"))
+    assert math.isnan(loaded.settings["cut"]) and loaded.settings["mode"] == "nearest"

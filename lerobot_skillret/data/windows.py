@@ -1,7 +1,7 @@
 """Skill windows from a LeRobotDataset, thousands of times faster than `__getitem__` with `delta_timestamps`.
 
 Skill pre-training and retrieval need millions of (history F, horizon H) windows. `LeRobotDataset.__getitem__`
-builds each one through Python lists and HF `datasets` row access (~2-4 ms per window). Here:
+builds each one through Python lists and HF `datasets` row access (milliseconds per window). Here:
 
 - `EpisodeColumns` exports the low-dim columns ONCE, column-wise, from the Arrow table behind `ds.hf_dataset`
   (pyarrow `flatten().to_numpy()`, never `__getitem__`), adds per-frame episode bounds, and stores the result as a
@@ -9,7 +9,8 @@ builds each one through Python lists and HF `datasets` row access (~2-4 ms per w
   The cache is built in a temporary folder and renamed into place, so a concurrent reader sees either no cache or
   a complete one.
 - `WindowSampler` draws anchors uniformly over frames (not over episodes: long episodes are not under-sampled) and
-  gathers windows by clamped index arithmetic plus one `np.take` per key (~1-3 us per window).
+  gathers windows by clamped index arithmetic plus one `np.take` per key (microseconds per window; measured side
+  by side by `benchmarks/windows_throughput.py`, figures in the README).
 
 Why not torchrl: its `SliceSampler` picks an episode first (not uniform over frames) and pads only on the right;
 torchrl 0.14's `Sequence` sample unit has the right semantics but is measurably slower than the index arithmetic

@@ -102,15 +102,25 @@ class PipelineConfig:
             raise ValueError(f"pipeline config: `jobs` must be >= 1 (got {self.jobs}); use the number of cores.")
         if not self.tasks or not self.seeds:
             raise ValueError("pipeline config: `tasks` and `seeds` must each name at least one entry.")
+        for name in ("n_episodes", "batch_size", "max_checkpoints"):
+            value = getattr(self.eval, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"pipeline config: `eval.{name}` must be an integer >= 1 (got {value!r}).")
         if self.eval.batch_size > self.eval.n_episodes:
             raise ValueError(
                 f"pipeline config: `eval.batch_size`={self.eval.batch_size} exceeds `eval.n_episodes`="
                 f"{self.eval.n_episodes}; lerobot-eval needs batch_size <= n_episodes."
             )
-        for spec_name in ("skills", "policy"):
-            spec = getattr(self, spec_name)
+        specs = {"skills": self.skills, "policy": self.policy} | {f"baselines.{k}": v for k, v in self.baselines.items()}
+        for spec_name, spec in specs.items():
             if spec.steps < 1 or spec.save_freq < 1 or spec.batch_size < 1:
                 raise ValueError(f"pipeline config: `{spec_name}` needs steps, save_freq and batch_size >= 1.")
+            if spec.config_path is not None and not Path(spec.config_path).is_file():
+                raise FileNotFoundError(
+                    f"pipeline config: `{spec_name}.config_path` {spec.config_path} not found (relative paths are "
+                    f"read from the current folder {Path.cwd()}); run from the repository root or give an "
+                    "absolute path."
+                )
 
     @classmethod
     def from_yaml(cls, path: str | Path, overrides: dict[str, Any] | None = None) -> PipelineConfig:

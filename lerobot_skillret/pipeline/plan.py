@@ -2,12 +2,12 @@
 
 Layout of the output folder (every path is an artifact; a stage is skipped when its artifact exists):
 
-    data/play, data/demos_<task>                      LeRobotDatasets (skillret-generate)
+    data/play, data/demos_<task>                        LeRobotDatasets (skillret-generate)
     skills/prior_seed<s>, skills/target_<task>_seed<s>  stage-1 runs (lerobot-train, stage=skills)
-    retrieval/<task>_<mode>_seed<s>.safetensors        retrieval files (skillret-retrieve), reports beside them
-    train/<method>/<task>/seed<s>                      stage-2 / baseline runs (lerobot-train)
-    eval/<method>/<task>/seed<s>/step<k>               lerobot-eval outputs (eval_info.json, videos/)
-    cells/<method>/<task>/seed<s>.json                 the protocol's summary of one (method, task, seed) cell
+    retrieval/<task>_<mode>_seed<s>/                    retrieval.safetensors + report/ (skillret-retrieve)
+    train/<method>/<task>/seed<s>                       stage-2 / baseline runs (lerobot-train)
+    eval/<method>/<task>/seed<s>/step<k>                lerobot-eval outputs (eval_info.json, videos/)
+    cells/<method>/<task>/seed<s>.json                  the protocol's summary of one (method, task, seed) cell
 """
 
 from __future__ import annotations
@@ -160,6 +160,11 @@ class Plan:
 
     def retrieval_path(self, task: str, mode: str, seed: int) -> Path:
         return self.retrieval_dir(task, mode, seed) / "retrieval.safetensors"
+
+    def retrieval_summary(self, cell: Cell) -> Path | None:
+        """The report summary (precision per primitive, distances) of the retrieval a cell trained on, if any."""
+        mode = RETRIEVAL_MODE.get(cell.method)
+        return None if mode is None else self.retrieval_dir(cell.task, mode, cell.seed) / "report" / "summary.json"
 
     def retrieval_stage(self, task: str, mode: str, seed: int) -> Stage:
         out = self.retrieval_dir(task, mode, seed)

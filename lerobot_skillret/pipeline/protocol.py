@@ -49,7 +49,8 @@ def summarise_cell(plan: Plan, cell: Cell, train_seconds: float | None, eval_sec
 
 
 def publish_cell(plan: Plan, cell: Cell, summary: dict[str, Any], results_dir: Path | None) -> None:
-    """Write the cell summary; copy it and the raw eval JSONs into the results folder kept in the repository."""
+    """Write the cell summary; copy it, the raw eval JSONs and the retrieval report's summary (retrieval methods)
+    into the results folder kept in the repository."""
     write_json_atomic(plan.cell_path(cell), summary)
     if results_dir is None:
         return
@@ -59,6 +60,9 @@ def publish_cell(plan: Plan, cell: Cell, summary: dict[str, Any], results_dir: P
     tmp.mkdir(parents=True)
     for row in summary["checkpoints"]:
         shutil.copyfile(plan.eval_dir(cell, row["step"]) / "eval_info.json", tmp / f"eval_step{row['step']}.json")
+    retrieval_summary = plan.retrieval_summary(cell)
+    if retrieval_summary is not None:
+        shutil.copyfile(retrieval_summary, tmp / "retrieval_summary.json")
     (tmp / "cell.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
     shutil.rmtree(dest, ignore_errors=True)
     tmp.rename(dest)

@@ -1,7 +1,7 @@
 """The results tables: mean +- std over seeds of each (method, task) cell's best checkpoint.
 
-Two metrics: the seed's binary success rate, and subtask progress (mean fraction of the task's goals reached in a
-rollout), which still separates methods when every success rate is 0.
+Two metrics: the seed's binary success rate, and subtask progress (mean over rollouts of the largest fraction of
+the goals unmet at reset that were met), which still separates methods when every success rate is 0.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ def _order(methods: set[str]) -> list[str]:
 
 METRICS = {
     "success": "Success rate (%)",
-    "subgoals": "Subtask progress (% of the task's goals reached)",
+    "subgoals": "Subtask progress (% of the goals unmet at reset that were reached)",
 }
 
 
