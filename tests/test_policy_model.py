@@ -185,7 +185,6 @@ def test_stage2_forward_with_retrieval_and_ablations(stage1_dir, prior_root, tar
     assert _grad_norm(policy.latent_policy) > 0 and _grad_norm(policy.skills.decoder) > 0
     assert policy.config.skills_checkpoint_fingerprint == checkpoint_fingerprint(stage1_dir)
 
-
     no_retrieval = stage2_policy(stage1_dir, target_root, use_retrieval=False, **prior)
     _, info = no_retrieval.forward(batch)
     assert "policy_retrieved_loss" not in info and "policy_target_loss" in info

@@ -111,7 +111,9 @@ class PipelineConfig:
                 f"pipeline config: `eval.batch_size`={self.eval.batch_size} exceeds `eval.n_episodes`="
                 f"{self.eval.n_episodes}; lerobot-eval needs batch_size <= n_episodes."
             )
-        specs = {"skills": self.skills, "policy": self.policy} | {f"baselines.{k}": v for k, v in self.baselines.items()}
+        specs = {"skills": self.skills, "policy": self.policy} | {
+            f"baselines.{k}": v for k, v in self.baselines.items()
+        }
         for spec_name, spec in specs.items():
             if spec.steps < 1 or spec.save_freq < 1 or spec.batch_size < 1:
                 raise ValueError(f"pipeline config: `{spec_name}` needs steps, save_freq and batch_size >= 1.")
