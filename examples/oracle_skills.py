@@ -12,7 +12,6 @@ success of the trained policy points at the latent policy; low success here poin
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +20,7 @@ from lerobot.envs.utils import preprocess_observation
 
 from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
 from lerobot_skillret.kitchen.gym_env import KitchenEnv
-from lerobot_skillret.kitchen.observations import KITCHEN_META
+from lerobot_skillret.kitchen.observations import load_kitchen_meta
 from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
 
 
@@ -64,7 +63,7 @@ def main() -> None:
     policy = SkillRetPolicy.from_pretrained(args.checkpoint)
     columns = EpisodeColumns.from_dataset(f"local/{args.demos.name}", args.demos)
     sampler = WindowSampler(columns, history=policy.config.history, horizon=policy.config.horizon)
-    episodes = json.loads((args.demos / KITCHEN_META).read_text())["episodes"][: args.episodes]
+    episodes = load_kitchen_meta(args.demos)["episodes"][: args.episodes]
     episode_index = columns.td["episode_index"].numpy()
     env, solved = KitchenEnv(task=args.task), 0
     for episode in episodes:

@@ -8,6 +8,8 @@ Pipeline, in reading order: kitchen (data generation) -> data (windows) -> polic
 -> retrieval -> pipeline (end-to-end runs, evaluation, results).
 """
 
+from importlib.metadata import version
+
 from lerobot_skillret.kitchen.env_config import PandaKitchenEnv
 from lerobot_skillret.kitchen.registration import register_envs
 from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
@@ -15,4 +17,4 @@ from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
 register_envs()
 
 __all__ = ["PandaKitchenEnv", "SkillRetConfig"]
-__version__ = "0.1.0"
+__version__ = version("lerobot_policy_skillret")

@@ -53,11 +53,11 @@ def test_datasets_load_offline_with_the_env_layout(datasets):
 
 
 def test_demos_succeed_and_play_is_labelled(datasets):
-    demos = G.load_kitchen_meta(datasets / "demos")
+    demos = O.load_kitchen_meta(datasets / "demos")
     assert demos["task"] == "breakfast" and len(demos["episodes"]) == 2
     assert all(ep["success"] for ep in demos["episodes"])
     assert _load(datasets / "demos").meta.tasks.index[0] == TASKS["breakfast"].description
-    play = G.load_kitchen_meta(datasets / "play")
+    play = O.load_kitchen_meta(datasets / "play")
     assert play["primitive_names"] == list(PRIMITIVES) and play["episodes"][0]["length"] == 120
     labels = np.asarray(_load(datasets / "play").hf_dataset[O.PRIMITIVE_KEY]).reshape(-1)
     assert labels.min() >= 0 and labels.max() < len(PRIMITIVES)
@@ -67,7 +67,7 @@ def test_replay_of_recorded_actions_reproduces_success(datasets):
     from lerobot_skillret.kitchen.replay import episode_actions, replay_actions
     from lerobot_skillret.kitchen.scene import KitchenScene
 
-    meta = G.load_kitchen_meta(datasets / "demos")
+    meta = O.load_kitchen_meta(datasets / "demos")
     actions = episode_actions(datasets / "demos")
     scene = KitchenScene()
     for ep in meta["episodes"]:

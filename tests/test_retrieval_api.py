@@ -17,7 +17,7 @@ from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fi
 from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
 from lerobot_skillret.retrieval.api import retrieve
 from lerobot_skillret.retrieval.cli import main
-from lerobot_skillret.retrieval.report import precision_from_file, retrieval_precision
+from lerobot_skillret.retrieval.report import retrieval_precision
 from lerobot_skillret.retrieval.schema import RetrievalResult
 from lerobot_skillret.retrieval.settings import RetrievalSettings
 
@@ -87,12 +87,12 @@ def test_cli_writes_a_consistent_retrieval_file_and_report(setup, tmp_path):
     for name in ("latents_pca.png", "distance_histogram.png", "primitive_shares.png"):
         assert (report / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
-    # Precision from the file equals the share computed by hand from the prior's labels.
+    # The report's precision equals the share computed by hand from the prior's labels.
     labels = EpisodeColumns.from_dataset(PRIOR_REPO, setup["prior"]).td["primitive_index"]
     picked = labels[result.prior_index]
-    scores = precision_from_file(output, PRIOR_REPO, setup["prior"], ["skill_0", "skill_2"], names=NAMES)
-    assert scores["precision"] == pytest.approx(float(((picked == 0) | (picked == 2)).double().mean()))
-    assert scores["prior_share"] == pytest.approx(float(((labels == 0) | (labels == 2)).double().mean()))
+    precision = summary["precision"]
+    assert precision["retrieved"] == pytest.approx(float(((picked == 0) | (picked == 2)).double().mean()))
+    assert precision["candidates"] == pytest.approx(float(((labels == 0) | (labels == 2)).double().mean()))
 
 
 @pytest.mark.parametrize(

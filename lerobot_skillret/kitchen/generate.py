@@ -150,11 +150,6 @@ def _primitive_names() -> tuple[str, ...]:
     return PRIMITIVES
 
 
-def load_kitchen_meta(root: str | Path) -> dict:
-    """The generator's side file of a dataset root (primitive names, per-episode initial states, ...)."""
-    return json.loads((Path(root) / O.KITCHEN_META).read_text())
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="skillret-generate",

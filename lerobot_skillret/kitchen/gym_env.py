@@ -15,8 +15,9 @@ from gymnasium import spaces
 
 from lerobot_skillret.kitchen import observations as O
 from lerobot_skillret.kitchen.expert import reset_scene
+from lerobot_skillret.kitchen.layout import CONTROL_FREQ
 from lerobot_skillret.kitchen.rendering import CameraRenderer
-from lerobot_skillret.kitchen.scene import CONTROL_FREQ, KitchenScene
+from lerobot_skillret.kitchen.scene import KitchenScene
 from lerobot_skillret.kitchen.tasks import get_task
 
 RENDER_SIZE = 256

@@ -10,6 +10,9 @@ Import-light (numpy + layout only) so the EnvConfig can derive its features here
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 
 from lerobot_skillret.kitchen import layout
@@ -109,3 +112,13 @@ def env_feature_shapes(cameras: tuple[str, ...] = (), image_size: int = DEFAULT_
     for cam in check_cameras(cameras):
         shapes[f"pixels/{cam}"] = (image_size, image_size, 3)
     return shapes
+
+
+def load_kitchen_meta(root: str | Path) -> dict:
+    """The generator's side file of a dataset root (primitive names, per-episode seeds and initial states, ...)."""
+    path = Path(root) / KITCHEN_META
+    if not path.is_file():
+        raise FileNotFoundError(
+            f"{path} not found: {root} was not written by `skillret-generate` (only kitchen datasets have it)."
+        )
+    return json.loads(path.read_text())

@@ -9,7 +9,8 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-CAMERAS = ("agentview", "eye_in_hand")
+from lerobot_skillret.kitchen.observations import CAMERAS
+
 _CAMERA_IDS = {"agentview": "agentview", "eye_in_hand": "robot0_eye_in_hand"}
 
 

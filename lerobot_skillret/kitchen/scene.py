@@ -22,7 +22,6 @@ from robosuite.utils.mjcf_utils import array_to_string
 from lerobot_skillret.kitchen import layout
 
 # One simulation timestep for generation and evaluation (layout.SIMULATION_TIMESTEP), applied here only.
-CONTROL_FREQ = layout.CONTROL_FREQ
 macros.SIMULATION_TIMESTEP = layout.SIMULATION_TIMESTEP
 
 ASSETS = Path(__file__).parent / "assets"
@@ -61,7 +60,7 @@ class KitchenScene(ManipulationEnv):
             has_renderer=False,
             has_offscreen_renderer=bool(cameras),
             render_collision_mesh=render_collision_mesh,
-            control_freq=CONTROL_FREQ,
+            control_freq=layout.CONTROL_FREQ,
             horizon=10**9,
             ignore_done=True,
             hard_reset=False,

@@ -12,6 +12,8 @@ from typing import Any
 
 import yaml
 
+from lerobot_skillret.kitchen.generate import DEFAULT_DEMOS, DEFAULT_PLAY_EPISODES, DEFAULT_PLAY_STEPS
+
 # Methods the pipeline knows: the method, its ablations (seed A.4 / Table 3) and LeRobot baselines (seed C.4).
 SKILLRET_METHODS = ("skillret", "no_retrieval", "all_retrieval", "random_retrieval", "no_prior")
 BASELINE_METHODS = ("act", "diffusion", "act_ft")
@@ -22,9 +24,9 @@ METHODS = SKILLRET_METHODS + BASELINE_METHODS
 class DataSpec:
     """Kitchen data generated once per output folder and shared by every method."""
 
-    play_episodes: int = 150  # prior play trajectories (the seed's real-kitchen prior: 150 x ~2,000 steps)
-    play_steps: int = 2000  # steps per play trajectory
-    demo_episodes: int = 30  # successful target demonstrations per task
+    play_episodes: int = DEFAULT_PLAY_EPISODES  # prior play trajectories (the seed's real-kitchen prior: 150 x ~2,000)
+    play_steps: int = DEFAULT_PLAY_STEPS  # steps per play trajectory
+    demo_episodes: int = DEFAULT_DEMOS  # successful target demonstrations per task
     workers: int = 2  # generator worker processes
     seed: int = 0  # generation seed (datasets are reproducible from it)
     cameras: bool = False  # also record 84x84 agentview + eye-in-hand images

@@ -21,7 +21,7 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
-from lerobot_skillret.kitchen.observations import KITCHEN_META, PRIMITIVE_KEY
+from lerobot_skillret.kitchen.observations import KITCHEN_META, PRIMITIVE_KEY, load_kitchen_meta
 from lerobot_skillret.retrieval.engine import (
     STREAM_CANDIDATES,
     STREAM_TARGETS,
@@ -260,9 +260,8 @@ def primitive_names(root: str | Path) -> list[str] | None:
     names, one per label value). None when absent: reports then say "primitive <i>".
     """
     meta = Path(root) / "meta"
-    kitchen = Path(root) / KITCHEN_META
-    if kitchen.is_file():
-        names = json.loads(kitchen.read_text()).get("primitive_names")
+    if (Path(root) / KITCHEN_META).is_file():
+        names = load_kitchen_meta(root).get("primitive_names")
         if isinstance(names, list):
             return [str(n) for n in names]
     extra = meta / "primitives.json"

@@ -21,7 +21,7 @@ import logging
 import sys
 from pathlib import Path
 
-from lerobot_skillret.retrieval.settings import ABLATIONS, EVERY_WINDOW, MODES, RetrievalSettings
+from lerobot_skillret.retrieval.settings import ABLATIONS, EVERY_WINDOW, METRICS, MODES, RetrievalSettings, ablation
 
 
 def _num_prior(text: str) -> int | str:
@@ -77,7 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     paper.add_argument("--mode", choices=MODES, help="nearest (the method), random, all or none")
     paper.add_argument("--fraction", type=float, help="r: share of candidates retrieved, in [0, 1] (paper 0.1)")
-    paper.add_argument("--metric", choices=("l2", "kl"), help="l2 on encoder means, or symmetric KL (A.2)")
+    paper.add_argument("--metric", choices=METRICS, help="l2 on encoder means, or symmetric KL (A.2)")
     paper.add_argument(
         "--num-prior",
         type=_num_prior,
@@ -119,7 +119,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def settings_from_args(args: argparse.Namespace) -> RetrievalSettings:
     """The ablation's settings, overridden by every option given explicitly."""
-    values = dict(ABLATIONS[args.ablation])
+    given = {}
     for name in (
         "mode",
         "fraction",
@@ -135,8 +135,8 @@ def settings_from_args(args: argparse.Namespace) -> RetrievalSettings:
         "chunk_size",
     ):
         if getattr(args, name) is not None:
-            values[name] = getattr(args, name)
-    return RetrievalSettings(seed=args.seed, **values)
+            given[name] = getattr(args, name)
+    return ablation(args.ablation, seed=args.seed, **given)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -30,7 +30,8 @@ import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
-METRICS = ("l2", "kl")
+from lerobot_skillret.policy.configuration_skillret import RETRIEVAL_METRICS as METRICS
+
 _UNIT_ROUNDOFF = {torch.float32: 2.0**-24, torch.float64: 2.0**-53}
 _EXACT_SLICE = 1 << 16  # prior rows gathered at once by `exact`
 

@@ -41,42 +41,6 @@ def retrieval_precision(primitive: Tensor, relevant: Iterable[str], names: Seque
     return float(torch.isin(primitive.to(torch.int64), wanted).double().mean())
 
 
-def precision_from_file(
-    retrieval_path: str | Path,
-    prior_repo_id: str,
-    prior_root: str | Path,
-    relevant: Iterable[str],
-    names: Sequence[str] | None = None,
-) -> dict[str, float]:
-    """Precision of a retrieval file against the prior's primitive labels, and the random-retrieval baseline.
-
-    Returns `precision` (share of retrieved windows with a relevant primitive), `prior_share` (share of all prior
-    windows with one: the expected precision of uniform random retrieval), their ratio `lift`, and `retrieved`.
-    """
-    from lerobot_skillret.data.windows import EpisodeColumns
-    from lerobot_skillret.retrieval.api import PRIMITIVE_KEY, primitive_names
-
-    result = RetrievalResult.load(retrieval_path)
-    columns = EpisodeColumns.from_dataset(prior_repo_id, prior_root)
-    if PRIMITIVE_KEY not in columns.features:
-        raise KeyError(f"The prior dataset at {prior_root} has no `{PRIMITIVE_KEY}` column to measure precision on.")
-    names = list(names) if names is not None else primitive_names(prior_root)
-    if names is None:
-        raise ValueError(
-            f"The prior dataset at {prior_root} does not name its primitives; pass `names` (label -> name)."
-        )
-    relevant = list(relevant)
-    labels = columns.td[PRIMITIVE_KEY].as_subclass(Tensor).to(torch.int64)
-    precision = retrieval_precision(labels[result.prior_index], relevant, names)
-    prior_share = retrieval_precision(labels, relevant, names)
-    return {
-        "precision": precision,
-        "prior_share": prior_share,
-        "lift": precision / prior_share if prior_share > 0 else float("nan"),
-        "retrieved": len(result),
-    }
-
-
 def relevant_labels(relevant: Iterable[str], names: Sequence[str]) -> Tensor:
     """Label values of the `relevant` primitive names (a clear error for a name the dataset does not have)."""
     relevant = list(relevant)
