@@ -27,8 +27,7 @@ class EpisodeJob:
     seed: int
     task: str | None = None  # demos only
     steps: int = 0  # play only: frames per episode
-    cameras: tuple[str, ...] = ()
-    image_size: int = O.DEFAULT_IMAGE_SIZE
+    cameras: tuple[str, ...] = ()  # rendered at observations.DEFAULT_IMAGE_SIZE
 
 
 @dataclass
@@ -44,19 +43,19 @@ class Episode:
 _WORKER: dict = {}
 
 
-def _scene(cameras: tuple[str, ...], image_size: int):
-    key = (cameras, image_size)
-    if _WORKER.get("key") != key:
+def _scene(cameras: tuple[str, ...]):
+    if _WORKER.get("cameras") != cameras:
         from lerobot_skillret.kitchen.rendering import CameraRenderer
         from lerobot_skillret.kitchen.scene import KitchenScene
 
         scene = _WORKER.get("scene") or KitchenScene()
-        _WORKER.update(key=key, scene=scene, cam=CameraRenderer(scene, image_size) if cameras else None)
+        camera = CameraRenderer(scene, O.DEFAULT_IMAGE_SIZE) if cameras else None
+        _WORKER.update(cameras=cameras, scene=scene, cam=camera)
     return _WORKER["scene"], _WORKER["cam"]
 
 
 def run_episode(job: EpisodeJob) -> Episode:
-    scene, cam = _scene(job.cameras, job.image_size)
+    scene, cam = _scene(job.cameras)
     rng = np.random.default_rng(job.seed)
     task = get_task(job.task) if job.kind == "demos" else play_scene_task(rng)
     reset_scene(scene, task, rng)

@@ -24,6 +24,7 @@ from tqdm import tqdm
 from lerobot_skillret.kitchen import observations as O
 from lerobot_skillret.kitchen.collect import Episode, EpisodeJob, run_episode
 from lerobot_skillret.kitchen.layout import CONTROL_FREQ
+from lerobot_skillret.kitchen.primitives import PRIMITIVES
 from lerobot_skillret.kitchen.tasks import TASKS
 
 PLAY_TASK_TEXT = "play"
@@ -127,7 +128,7 @@ def generate(args) -> Path:
             "task": args.task,
             "seed": args.seed,
             "cameras": list(args.cameras),
-            "primitive_names": list(_primitive_names()),
+            "primitive_names": list(PRIMITIVES),
             "attempts": attempts,
             "failed_attempts": failures,
             "episodes": episodes_meta,
@@ -142,12 +143,6 @@ def generate(args) -> Path:
         print(f"{args.task}: kept {len(episodes_meta)} successful demos of {attempts} attempts ({failures} failed)")
     print(f"wrote {root}")
     return root
-
-
-def _primitive_names() -> tuple[str, ...]:
-    from lerobot_skillret.kitchen.primitives import PRIMITIVES
-
-    return PRIMITIVES
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -49,7 +49,7 @@ def _load_asset(fname: str, prefix: str) -> ET.Element:
 class KitchenScene(ManipulationEnv):
     """Panda kitchen table. Reset with `reset_to(layout_spec)`; the scene never randomises by itself."""
 
-    def __init__(self, cameras: tuple[str, ...] = (), image_size: int = 84, render_collision_mesh: bool = True):
+    def __init__(self, render_collision_mesh: bool = True):
         self.table_full_size = layout.TABLE_FULL_SIZE
         self.table_offset = np.array((0.0, 0.0, layout.TABLE_Z))
         super().__init__(
@@ -58,15 +58,12 @@ class KitchenScene(ManipulationEnv):
             initialization_noise=None,
             use_camera_obs=False,
             has_renderer=False,
-            has_offscreen_renderer=bool(cameras),
+            has_offscreen_renderer=False,  # images come from rendering.CameraRenderer
             render_collision_mesh=render_collision_mesh,
             control_freq=layout.CONTROL_FREQ,
             horizon=10**9,
             ignore_done=True,
             hard_reset=False,
-            camera_names=list(cameras) or "agentview",
-            camera_heights=image_size,
-            camera_widths=image_size,
         )
         self._cache_ids()
 

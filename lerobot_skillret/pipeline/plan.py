@@ -81,8 +81,7 @@ class Plan:
 
     def data_stages(self) -> list[Stage]:
         d = self.cfg.data
-        cameras = ["--cameras", "agentview", "eye_in_hand"] if d.cameras else []
-        common = ["--seed", str(d.seed), "--workers", str(d.workers), *cameras]
+        common = ["--seed", str(d.seed), "--workers", str(d.workers)]  # low-dim only (config rejects cameras)
         play = Stage("data/play", self.play_root())
         play.command = [
             str(BIN / "skillret-generate"),
