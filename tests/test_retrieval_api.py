@@ -158,7 +158,7 @@ def test_bad_inputs_have_clear_errors(setup, tmp_path, capsys):
     fails([*cli_args(setup, output)[:1], str(other), *cli_args(setup, output)[2:]], "`act` checkpoint")
     no_data = cli_args(setup, output)
     no_data[no_data.index("--target-root") + 1] = str(tmp_path / "no_dataset")
-    fails(no_data, "holds no LeRobotDataset")
+    fails(no_data, "No LeRobotDataset at")
     fails(cli_args(setup, output, "--fraction", "1.5"), "`fraction`=1.5 is invalid")
     fails(cli_args(setup, output, "--num-target", "0"), "M must be >= 1")
     fails(cli_args(setup, output, "--relevant-primitives", "pick,place"), "Unknown primitive name(s) ['pick', 'place']")

@@ -123,6 +123,15 @@ def encode_windows(
     return Encoded(anchors=anchors, mean=mean, log_var=log_var)
 
 
+def _fingerprints(checkpoint: Path, prior: str, target: str) -> dict[str, str]:
+    """What a retrieval file is checked against later: its stage-1 checkpoint and both datasets' contents."""
+    return {
+        "checkpoint_fingerprint": checkpoint_fingerprint(checkpoint),
+        "prior_fingerprint": prior,
+        "target_fingerprint": target,
+    }
+
+
 def retrieve(
     checkpoint: str | Path,
     prior_repo_id: str,
@@ -145,11 +154,6 @@ def retrieve(
     from lerobot_skillret.data.windows import EpisodeColumns
 
     pretrained = resolve_checkpoint(checkpoint)
-    fingerprints = {
-        "checkpoint_fingerprint": checkpoint_fingerprint(pretrained),
-        "prior_fingerprint": dataset_fingerprint(prior_root),
-        "target_fingerprint": dataset_fingerprint(target_root),
-    }
     policy = load_skill_model(pretrained, device)
     settings = (settings or RetrievalSettings()).resolve(policy.config)
     info: dict[str, Any] = {
@@ -160,7 +164,8 @@ def retrieve(
         "horizon": policy.config.horizon,
         "latent_dim": policy.config.latent_dim,
     }
-    if settings.mode == "none":  # the "no retrieval" ablation: nothing to encode
+    if settings.mode == "none":  # the "no retrieval" ablation: nothing to encode, so the datasets are only hashed
+        fingerprints = _fingerprints(pretrained, dataset_fingerprint(prior_root), dataset_fingerprint(target_root))
         dim = policy.config.latent_dim
         result = RetrievalResult(
             torch.empty(0, dtype=torch.int64), torch.empty(0), torch.empty(0, dim), info, **fingerprints
@@ -169,6 +174,7 @@ def retrieve(
 
     prior_columns = EpisodeColumns.from_dataset(prior_repo_id, prior_root)
     target_columns = EpisodeColumns.from_dataset(target_repo_id, target_root)
+    fingerprints = _fingerprints(pretrained, prior_columns.fingerprint, target_columns.fingerprint)
     candidates = choose_anchors(len(prior_columns), settings.num_prior, generator(settings.seed, STREAM_CANDIDATES))
     targets = choose_anchors(len(target_columns), settings.num_target, generator(settings.seed, STREAM_TARGETS))
     labels, target_labels = _labels(prior_columns, candidates), _labels(target_columns, targets)
