@@ -9,7 +9,7 @@ import torch
 
 from lerobot_skillret.retrieval.api import ReportInputs
 from lerobot_skillret.retrieval.engine import Selection
-from lerobot_skillret.retrieval.report import label_names, write_report
+from lerobot_skillret.retrieval.report import QUANTILES, _quantiles, label_names, write_report
 from lerobot_skillret.retrieval.schema import RetrievalResult
 
 
@@ -78,3 +78,12 @@ def test_no_retrieval_report_has_counts_only(tmp_path):
 def test_label_names_fill_unnamed_labels():
     assert label_names(None, torch.tensor([0, 2])) == ["primitive 0", "primitive 1", "primitive 2"]
     assert label_names(["a"], torch.tensor([1]), None) == ["a", "primitive 1"]
+
+
+def test_distance_quantiles_are_exact_beyond_torch_quantiles_limit():
+    values = torch.rand(1001, generator=torch.Generator().manual_seed(0))
+    expected = torch.quantile(values.double(), torch.tensor(QUANTILES, dtype=torch.float64))
+    assert list(_quantiles(values).values()) == pytest.approx(expected.tolist(), abs=1e-12)
+    # torch.quantile refuses more than 2^24 values; every candidate of a large prior still counts
+    many = torch.arange((1 << 24) + 1, dtype=torch.float32).flip(0)
+    assert _quantiles(many)["0.5"] == 1 << 23 and _quantiles(many)["1"] == 1 << 24

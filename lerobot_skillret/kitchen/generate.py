@@ -58,7 +58,7 @@ def _episode_stream(jobs: list[EpisodeJob], workers: int) -> Iterator[Iterator[E
         pool.terminate()
 
 
-def _jobs(args) -> list[EpisodeJob]:
+def _jobs(args: argparse.Namespace) -> list[EpisodeJob]:
     cams = tuple(args.cameras)
     if args.kind == "play":
         return [
@@ -71,7 +71,7 @@ def _jobs(args) -> list[EpisodeJob]:
     ]
 
 
-def generate(args) -> Path:
+def generate(args: argparse.Namespace) -> Path:
     """Generate the dataset described by parsed CLI `args`; returns its root."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 

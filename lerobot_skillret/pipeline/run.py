@@ -14,6 +14,7 @@ import json
 import logging
 import os
 import time
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
@@ -101,7 +102,7 @@ def run_jobs(plan: Plan, runner: StageRunner, results_dir: Path | None, jobs: in
     cells = sorted(plan.cells(), key=lambda c: (c.seed, bool(prerequisites(plan, c))))
     shared = {stage.name: stage for cell in cells for stage in prerequisites(plan, cell)}
 
-    def job(what: str, fn, *args) -> None:
+    def job(what: str, fn: Callable[..., object], *args: object) -> None:
         if runner.cancel.is_set():
             raise Cancelled(f"{what} not started")
         try:

@@ -16,6 +16,7 @@ from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
 from types import EllipsisType
+from typing import TYPE_CHECKING
 
 import torch
 from huggingface_hub import ModelCard
@@ -28,6 +29,10 @@ from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
 from lerobot_skillret.policy.latent_policy import RETRIEVED_ID, TARGET_ID, LatentPolicy
 from lerobot_skillret.policy.normalization import SkillNormalizer
 from lerobot_skillret.policy.skills import SkillModel, make_observation_encoder
+
+if TYPE_CHECKING:
+    from lerobot_skillret.policy.training_data import TrainingData
+    from lerobot_skillret.policy.window_source import WindowSource
 
 Batch = Mapping[str, Tensor]
 
@@ -158,14 +163,14 @@ class SkillRetPolicy(PreTrainedPolicy):
             return loss, {name: float(value) for name, value in terms.items()}
         return self._stage2_loss(batch, data)
 
-    def _data(self):
+    def _data(self) -> TrainingData:
         from lerobot_skillret.policy.training_data import TrainingData
 
         if self._training_data is None:
             self._training_data = TrainingData.build(self)
         return self._training_data
 
-    def _skill_loss(self, sources: list) -> tuple[Tensor, dict[str, Tensor], Tensor]:
+    def _skill_loss(self, sources: list[tuple[Batch, WindowSource]]) -> tuple[Tensor, dict[str, Tensor], Tensor]:
         """Algorithm 1's loss over the windows of several (raw batch, its WindowSource) pairs at once.
 
         Each source supplies the temporal pair of its own windows (same episode). Returns the loss, its detached
@@ -188,7 +193,7 @@ class SkillRetPolicy(PreTrainedPolicy):
         loss, terms, means = self.skills.loss(join(windows), join(pairs), torch.cat(offsets), join(slow))
         return loss, {name: value.detach() for name, value in terms.items()}, means
 
-    def _stage2_loss(self, batch: Batch, data) -> tuple[Tensor, dict[str, float]]:
+    def _stage2_loss(self, batch: Batch, data: TrainingData) -> tuple[Tensor, dict[str, float]]:
         """L_policy on target (id 0) and retrieved (id 1) windows, + L_skill on target and prior windows."""
         config, device = self.config, self._device()
         size = batch[ACTION].shape[0]

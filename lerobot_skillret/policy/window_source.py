@@ -3,7 +3,7 @@
 `lerobot-train` feeds `forward` windows of ONE dataset (`--dataset.*`). The method also needs, per batch, the
 paired window at offset d of the same episode (temporal prediction, Algorithm 1 line 3), and in stage 2 prior
 windows (skill fine-tuning, Algorithm 2 line 17) and retrieved prior windows (lines 12, 14). They come from the
-fast column sampler of `lerobot_skillret.data.windows` (contract A); camera frames, which that table does not hold,
+fast column sampler of `lerobot_skillret.data.windows`; camera frames, which that table does not hold,
 are read through `LeRobotDataset` for exactly the windows sampled.
 
 These objects are plain attributes of the policy, never modules: they stay out of the state_dict and checkpoints.

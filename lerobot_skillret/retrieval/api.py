@@ -14,7 +14,7 @@ import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import torch
 from torch import Tensor
@@ -32,6 +32,10 @@ from lerobot_skillret.retrieval.engine import (
 from lerobot_skillret.retrieval.report import label_names, relevant_labels, write_report
 from lerobot_skillret.retrieval.schema import RetrievalResult
 from lerobot_skillret.retrieval.settings import EVERY_WINDOW, RetrievalSettings
+
+if TYPE_CHECKING:
+    from lerobot_skillret.data.windows import EpisodeColumns
+    from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +70,7 @@ def resolve_checkpoint(path: str | Path) -> Path:
     return path
 
 
-def load_skill_model(path: str | Path, device: str | None = None):
+def load_skill_model(path: str | Path, device: str | None = None) -> SkillRetPolicy:
     """The stage-1 policy in eval mode on `device` (default: the checkpoint's own, if available)."""
     from lerobot.configs.policies import PreTrainedConfig
 
@@ -95,7 +99,14 @@ def choose_anchors(num_frames: int, count: int | str, rng: torch.Generator) -> T
 
 
 def encode_windows(
-    policy, columns, anchors: Tensor, *, batch_size: int, keep_log_var: bool, progress: bool, name: str
+    policy: SkillRetPolicy,
+    columns: EpisodeColumns,
+    anchors: Tensor,
+    *,
+    batch_size: int,
+    keep_log_var: bool,
+    progress: bool,
+    name: str,
 ) -> Encoded:
     """Encoder (mean, log_var) of the H-step windows at `anchors`, in batches, without autograd."""
     from lerobot_skillret.data.windows import WindowSampler
@@ -241,7 +252,7 @@ class ReportInputs:
     relevant_primitives: list[str] | None = None
 
 
-def _labels(columns, anchors: Tensor) -> Tensor | None:
+def _labels(columns: EpisodeColumns, anchors: Tensor) -> Tensor | None:
     if PRIMITIVE_KEY not in columns.features:
         return None
     return columns.td[PRIMITIVE_KEY].as_subclass(Tensor)[anchors].to(torch.int64)

@@ -95,9 +95,15 @@ def summarize(result: RetrievalResult, inputs: ReportInputs | None) -> dict[str,
 
 
 def _quantiles(values: Tensor) -> dict[str, float]:
+    """Exact quantiles (linear interpolation, as `torch.quantile`) of any number of values: torch.quantile itself
+    refuses inputs over 2^24 elements, which a large prior exceeds."""
     if values.numel() == 0:
         return {}
-    q = torch.quantile(values.double()[: 1 << 24], torch.tensor(QUANTILES, dtype=torch.float64))
+    ordered = values.double().flatten().sort().values
+    position = torch.tensor(QUANTILES, dtype=torch.float64) * (ordered.numel() - 1)
+    low = position.floor().long()
+    high = position.ceil().long()
+    q = ordered[low] + (ordered[high] - ordered[low]) * (position - low)
     return {f"{level:g}": float(v) for level, v in zip(QUANTILES, q, strict=True)}
 
 

@@ -116,13 +116,11 @@ class RetrievalResult:
         checkpoint_fingerprint: str | None = None,
     ) -> None:
         """Refuse a file computed on other data or another skill checkpoint than the one being used."""
-        for name, expected in (
-            ("prior dataset", prior_fingerprint),
-            ("target dataset", target_fingerprint),
-            ("stage-1 checkpoint", checkpoint_fingerprint),
+        for name, stored, expected in (
+            ("prior dataset", self.prior_fingerprint, prior_fingerprint),
+            ("target dataset", self.target_fingerprint, target_fingerprint),
+            ("stage-1 checkpoint", self.checkpoint_fingerprint, checkpoint_fingerprint),
         ):
-            key = {"prior dataset": "prior", "target dataset": "target", "stage-1 checkpoint": "checkpoint"}[name]
-            stored = getattr(self, f"{key}_fingerprint")
             if expected is not None and stored != expected:
                 raise ValueError(
                     f"The retrieval file was computed on a different {name} (fingerprint {stored or 'missing'}, "
