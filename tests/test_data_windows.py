@@ -319,3 +319,19 @@ def test_frame_reader_errors(dataset_root, columns, tmp_path):
         FrameReader(REPO, image_root, keys=["observation.images.missing"])
     with pytest.raises(ValueError, match="same dataset"):
         WindowSampler(columns, 2, 3, frames=FrameReader(REPO, image_root))
+
+
+def test_policy_window_source_decodes_videos_with_the_configured_backend(tmp_path):
+    """The windows skillret fetches itself (pairs, prior, retrieved) use `--policy.video_backend`, like LeRobot's."""
+    from lerobot_skillret.policy.window_source import WindowSource
+
+    root = _make_video_dataset(tmp_path / "vid", [7, 1, 9])
+    source = WindowSource("test/video", root, ["observation.state"], [VIDEO_KEY], 3, 4, video_backend="pyav")
+    assert source.sampler.frames.dataset.video_backend == "pyav"
+    anchors = torch.tensor([16, 7, 0])
+    batch = source.gather(anchors, "cpu")
+    deltas = [d / 20 for d in range(-2, 4)]
+    ds = LeRobotDataset("test/video", root=root, delta_timestamps={VIDEO_KEY: deltas}, video_backend="pyav")
+    for row, anchor in enumerate(anchors.tolist()):
+        assert torch.equal(batch[VIDEO_KEY][row], ds[anchor][VIDEO_KEY])
+        assert torch.equal(batch[f"{VIDEO_KEY}_is_pad"][row], ds[anchor][f"{VIDEO_KEY}_is_pad"])

@@ -86,6 +86,8 @@ class SkillRetConfig(PreTrainedConfig):
     finetune_skills: bool = True  # keep training the skill model in stage 2 (Alg. 2, line 17)
     retrieved_latents: str = "stored"  # labels z' of retrieved windows: "stored" in the retrieval file (paper,
     # Alg. 2 line 7) or "reencode" with the current, fine-tuned encoder (public implementation)
+    video_backend: str | None = None  # decoder of the camera windows the policy fetches itself (pairs, prior,
+    # retrieved); set it like --dataset.video_backend, e.g. "pyav" where torchcodec cannot load FFmpeg (None: LeRobot's)
     fast_windows: bool = False  # low-dim only: lerobot-train loads single frames and the policy gathers each
     # window by `index` from the memory-mapped column cache (same windows and pads, ~1000x cheaper per window)
     skills_checkpoint_fingerprint: str | None = None  # set by stage 2 from --policy.path; checked against the

@@ -56,7 +56,8 @@ class TrainingData:
         keys = (policy.low_dim_keys, policy.image_keys)
         # the training dataset's own windows are only needed whole (history included) with `fast_windows`
         history = config.history if config.fast_windows and config.stage == "policy" else 1
-        own = WindowSource(repo_id, root, *keys, history=history, horizon=config.horizon)
+        windows = {"horizon": config.horizon, "video_backend": config.video_backend}
+        own = WindowSource(repo_id, root, *keys, history=history, **windows)
         if config.stage == "skills":
             return cls(own=own)
 
@@ -68,9 +69,7 @@ class TrainingData:
                     "--policy.prior_root=<folder of the prior LeRobotDataset> (or --policy.prior_repo_id=null for "
                     "the 'no prior data' ablation)."
                 )
-            prior = WindowSource(
-                config.prior_repo_id, config.prior_root, *keys, history=config.history, horizon=config.horizon
-            )
+            prior = WindowSource(config.prior_repo_id, config.prior_root, *keys, history=config.history, **windows)
         retrieved = cls._retrieved(policy, own, prior) if config.use_retrieval else None
         return cls(own=own, prior=prior if config.finetune_skills else None, retrieved=retrieved)
 
