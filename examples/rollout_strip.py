@@ -18,7 +18,7 @@ import numpy as np
 
 
 def best_episode(eval_dir: Path) -> tuple[Path, float]:
-    """(video, max reward) of the filmed episode that reached the largest fraction of the task's goals."""
+    """(video, max reward) of the filmed episode that got furthest (largest fraction of the goals unmet at reset)."""
     metrics = json.loads((eval_dir / "eval_info.json").read_text())["per_task"][0]["metrics"]
     filmed = [(r, Path(p)) for r, p in zip(metrics["max_rewards"], metrics["video_paths"], strict=False)]
     if not filmed:

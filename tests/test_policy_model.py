@@ -354,13 +354,20 @@ def test_cameras_train_both_stages_and_act(tmp_path):
 
     two = build_policy(
         tiny_config(
-            crop_shape=(6, 6), stage="policy", use_retrieval=False, prior_repo_id=PRIOR_REPO, prior_root=str(root)
+            crop_shape=(6, 6),
+            stage="policy",
+            use_retrieval=False,
+            prior_repo_id=PRIOR_REPO,
+            prior_root=str(root),
+            video_backend="pyav",
         ),
         PRIOR_REPO,
         root,
     )
     loss, info = two.forward(training_batch(two.config, PRIOR_REPO, root, size=2))
     assert "policy_target_loss" in info and torch.isfinite(loss)
+    for source in (two._data().own, two._data().prior):  # --policy.video_backend reaches the frames it decodes
+        assert source.sampler.frames.dataset.video_backend == "pyav"
     two.reset()
     batch = training_batch(two.config, PRIOR_REPO, root, size=2)
     observation = {key: batch[key][:, 0] for key in two.observation_keys}

@@ -68,7 +68,7 @@ class PipelineConfig:
     tasks: list[str] = field(default_factory=lambda: ["cleaning_up"])
     seeds: list[int] = field(default_factory=lambda: [0])
     methods: list[str] = field(default_factory=lambda: ["skillret"])
-    results_dir: str | None = None  # where finished cells' raw eval JSONs are copied (e.g. benchmarks/results)
+    results_dir: str | None = None  # finished cells' eval JSONs, cell.json, retrieval_summary.json go here
     threads: int | None = None  # OMP_NUM_THREADS of every stage (1 avoids oversubscription on a shared machine)
     jobs: int = 1  # cells run at once (one core each with threads: 1); shared stages are built once, under a lock
     data: DataSpec = field(default_factory=DataSpec)

@@ -14,7 +14,8 @@ from lerobot_skillret.pipeline.plan import Cell, Plan
 def read_eval(eval_dir: Path) -> dict[str, float | int]:
     """Success rate in [0, 1], mean subtask progress in [0, 1] and rollout count from a lerobot-eval output folder.
 
-    Progress is lerobot-eval's `avg_max_reward`: the kitchen's reward is the fraction of the task's goals met.
+    Progress is lerobot-eval's `avg_max_reward`: the kitchen's reward is the fraction of the goals unmet at reset
+    that are met.
     """
     overall = json.loads((eval_dir / "eval_info.json").read_text())["overall"]
     return {
