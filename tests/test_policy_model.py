@@ -232,6 +232,25 @@ def test_retrieved_labels_and_their_weight(stage1_dir, prior_root, target_root, 
     assert loss_3 - loss_1 == pytest.approx(2.0 * info["policy_retrieved_loss"], rel=1e-4)
 
 
+def test_imitation_error_scores_the_policy_against_the_oracle_skill(stage1_dir, target_root, monkeypatch):
+    policy = stage2_policy(stage1_dir, target_root, use_retrieval=False, finetune_skills=False).eval()
+    frames = LeRobotDatasetMetadata(TARGET_REPO, root=target_root).total_frames
+    window = batch_at(policy.config, TARGET_REPO, target_root, [0, 5, frames - 2])  # the last one runs past its end
+    assert window["action_is_pad"][2].any()
+    errors = policy.imitation_error(window)
+    assert errors["policy"].shape == errors["oracle"].shape == (3,)
+    assert (errors["policy"] >= 0).all() and (errors["oracle"] >= 0).all()
+    assert not torch.allclose(errors["policy"], errors["oracle"])  # an untrained latent policy is not the oracle
+
+    # padded steps past the episode's end do not count
+    changed = dict(window, action=window["action"].clone())
+    changed["action"][window["action_is_pad"]] += 5.0
+    torch.testing.assert_close(policy.imitation_error(changed)["oracle"], errors["oracle"])
+    # a policy that picked exactly the oracle's skills would score the oracle's error
+    monkeypatch.setattr(policy.latent_policy, "forward", lambda history, ids: policy.encode_skill(window)[0])
+    torch.testing.assert_close(policy.imitation_error(window)["policy"], errors["oracle"])
+
+
 def test_stage2_refuses_bad_retrieval_setups(stage1_dir, prior_root, target_root, tmp_path):
     batch = training_batch(tiny_config(stage="policy"), TARGET_REPO, target_root)
     with pytest.raises(ValueError, match="prior_repo_id"):

@@ -245,6 +245,29 @@ class SkillRetPolicy(PreTrainedPolicy):
         mean, log_var = self.skills.encoder(self._window(window))
         return mean, log_var
 
+    @torch.no_grad()
+    def imitation_error(self, window: Mapping[str, Tensor]) -> dict[str, Tensor]:
+        """Per-window action error, (B,), of RAW stage-2 windows (F+H-1 observation steps, H actions) of a dataset.
+
+        `policy`: the latent policy's skill (dataset id = target, as at rollout), decoded closed-loop along the
+        window's own observations; `oracle`: the encoder's skill of the window itself, the best any policy over this
+        decoder can do. Squared error summed over action dimensions in the decoder's [-1, 1] units, averaged over
+        the valid steps. On held-out demonstrations it compares checkpoints without the noise of a few rollouts."""
+        self.normalizer.check_ready()
+        target = self._window(window)
+        size = target[ACTION].shape[0]
+        skills = {
+            "policy": self.latent_policy(self._history(window), torch.full((size,), TARGET_ID, device=self._device())),
+            "oracle": self.skills.encoder(target)[0],
+        }
+        valid = target["valid"].to(torch.float32)
+        errors = {}
+        for name, z in skills.items():
+            actions, _ = self.skills.decoder(z, target)
+            squared = (actions - target[ACTION]).pow(2).sum(dim=-1)
+            errors[name] = (squared * valid).sum(dim=1) / valid.sum(dim=1).clamp_min(1.0)
+        return errors
+
     # --- inference --------------------------------------------------------------------------------------------
 
     def reset(self) -> None:
