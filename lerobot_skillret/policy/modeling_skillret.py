@@ -260,11 +260,9 @@ class SkillRetPolicy(PreTrainedPolicy):
             "policy": self.latent_policy(self._history(window), torch.full((size,), TARGET_ID, device=self._device())),
             "oracle": self.skills.encoder(target)[0],
         }
-        valid = target["valid"].to(torch.float32)
         errors = {}
         for name, z in skills.items():
-            actions, _ = self.skills.decoder(z, target)
-            squared = (actions - target[ACTION]).pow(2).sum(dim=-1)
+            squared, valid = self.skills.action_error(z, target)
             errors[name] = (squared * valid).sum(dim=1) / valid.sum(dim=1).clamp_min(1.0)
         return errors
 

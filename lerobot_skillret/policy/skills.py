@@ -135,6 +135,13 @@ class SkillModel(nn.Module):
         temporal = {id(p) for p in self.temporal.parameters()}
         return [p for p in self.parameters() if id(p) not in temporal]
 
+    def action_error(self, z: Tensor, window: Window) -> tuple[Tensor, Tensor]:
+        """Decode `z` closed-loop along the window's observations: squared action error summed over action
+        dimensions, (B, H), and the mask (B, H) of valid steps (1.0; padded steps past an episode's end are 0.0)."""
+        actions, _ = self.decoder(z, window)
+        squared = (actions - window["action"]).pow(2).sum(dim=-1)
+        return squared, window["valid"].to(actions.dtype)
+
     def loss(
         self,
         window: Window,
@@ -160,9 +167,7 @@ class SkillModel(nn.Module):
         mean, log_var = means[:batch], log_vars[:batch]
 
         z = mean + torch.randn_like(mean) * torch.exp(0.5 * log_var) if self.training else mean
-        actions, _ = self.decoder(z, window)
-        valid = window["valid"].to(actions.dtype)
-        squared = (actions - window["action"]).pow(2).sum(dim=-1)
+        squared, valid = self.action_error(z, window)
         reconstruction = (squared * valid).sum() / valid.sum().clamp_min(1.0)
 
         prior_mean, prior_log_var = self.prior(window)

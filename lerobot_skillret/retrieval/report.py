@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 import torch
 from torch import Tensor
 
-from lerobot_skillret.files import write_atomic
+from lerobot_skillret.files import write_atomic, write_text_atomic
 from lerobot_skillret.retrieval.schema import RetrievalResult
 
 if TYPE_CHECKING:
@@ -164,10 +164,7 @@ def write_report(report_dir: str | Path, result: RetrievalResult, inputs: Report
     summary = summarize(result, inputs)
     paths = {"summary": report_dir / "summary.json"}
 
-    def dump(tmp: str) -> None:
-        Path(tmp).write_text(json.dumps(summary, indent=1, allow_nan=True) + "\n")
-
-    write_atomic(paths["summary"], dump)
+    write_text_atomic(paths["summary"], json.dumps(summary, indent=1, allow_nan=True) + "\n")
     if inputs is None or inputs.selection.distance.numel() == 0:
         return paths
     import matplotlib
