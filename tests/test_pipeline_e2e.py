@@ -15,14 +15,16 @@ import pytest
 from lerobot_skillret.retrieval.schema import RetrievalResult
 
 REPO = Path(__file__).resolve().parents[1]
-PIPELINE = [str(Path(sys.executable).parent / "skillret-pipeline"), "run", "--config", "configs/pipeline/smoke.yaml"]
+CLI = str(Path(sys.executable).parent / "skillret-pipeline")
+PIPELINE = [CLI, "run", "--config", "configs/pipeline/smoke.yaml"]
 
 
 @pytest.mark.slow
 def test_smoke_pipeline_survives_a_kill_and_produces_every_artifact(tmp_path: Path) -> None:
     out = tmp_path / "run"
     published = tmp_path / "published"
-    command = [*PIPELINE, f"output_dir={out}", f"results_dir={published}"]
+    overrides = [f"output_dir={out}", f"results_dir={published}"]
+    command = [*PIPELINE, *overrides]
     env = {**os.environ, "MUJOCO_GL": "egl", "HF_HUB_OFFLINE": "1"}
 
     # Kill the whole process group once stage 1 (skill pre-training) is under way.
@@ -62,3 +64,14 @@ def test_smoke_pipeline_survives_a_kill_and_produces_every_artifact(tmp_path: Pa
     assert "| skillret |" in (out / "results.md").read_text() and (out / "results.png").is_file()
     kept = {p.name for p in (published / "skillret" / "breakfast" / "seed0").iterdir()}
     assert kept == {"cell.json", "eval_step2.json", "eval_step4.json", "retrieval_summary.json"}
+
+    # Offline score of the trained cell on held-out demos (generated once), published beside the cell's eval JSONs.
+    heldout = [CLI, "heldout", "--config", "configs/pipeline/smoke.yaml", *overrides, "heldout.episodes=1"]
+    scored = subprocess.run(heldout, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
+    assert scored.returncode == 0, scored.stderr[-3000:]
+    assert "[run ] heldout/demos_breakfast" in scored.stderr
+    errors = json.loads((published / "skillret" / "breakfast" / "seed0" / "heldout_error.json").read_text())
+    assert [row["step"] for row in errors["checkpoints"]] == [2, 4] and errors["frames"] > 0
+    assert all(0.0 <= row[k] < float("inf") for row in errors["checkpoints"] for k in ("policy", "oracle"))
+    for report in (out / "results.md", published / "results.md"):
+        assert "| skillret |" in report.read_text().split("### Held-out imitation error")[1]

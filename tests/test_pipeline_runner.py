@@ -16,7 +16,14 @@ import pytest
 from lerobot_skillret.pipeline.config import PipelineConfig, RetrievalSpec
 from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.protocol import summarise_cell
-from lerobot_skillret.pipeline.results import bar_plot, collect, markdown_report, markdown_table
+from lerobot_skillret.pipeline.results import (
+    HELDOUT_FILE,
+    PUBLISHED_HELDOUT,
+    bar_plot,
+    collect,
+    markdown_report,
+    markdown_table,
+)
 from lerobot_skillret.pipeline.stages import Stage, StageRunner
 
 
@@ -120,6 +127,9 @@ def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
     path.write_text("eval: {max_checkpoints: 0}\n")  # would slice [-0:], i.e. evaluate every checkpoint
     with pytest.raises(ValueError, match=r"`eval\.max_checkpoints` must be an integer >= 1 \(got 0\)"):
         PipelineConfig.from_yaml(path)
+    path.write_text("heldout: {seed: 0}\n")  # data.seed is 0: the "held-out" demos would be the training ones
+    with pytest.raises(ValueError, match=r"`heldout` needs episodes >= 1 and a seed other than `data\.seed`=0"):
+        PipelineConfig.from_yaml(path)
     path.write_text("skills: {config_path: configs/policy/cpu.jsn}\n")
     with pytest.raises(FileNotFoundError, match=r"`skills\.config_path` configs/policy/cpu\.jsn not found"):
         PipelineConfig.from_yaml(path)
@@ -168,10 +178,31 @@ def test_report_has_a_subtask_progress_table(tmp_path: Path) -> None:
     _cell(tmp_path, "skillret", "cook", 0, 0.0, subgoals=0.25)
     _cell(tmp_path, "skillret", "cook", 1, 0.0, subgoals=0.75)
     _cell(tmp_path, "act", "cook", 0, 0.0)  # summarised before progress was recorded
-    report = markdown_report(collect(tmp_path))
+    report = markdown_report(collect(tmp_path), {})
     success, progress = report.split("### Subtask progress")
     assert "| skillret | 0.0 ± 0.0 (2) | 0.0 |" in success
     assert "| skillret | 50.0 ± 25.0 (2) | 50.0 |" in progress and "| act | — | — |" in progress
+
+
+def test_heldout_table_is_the_final_checkpoints_mean_over_seeds(tmp_path: Path) -> None:
+    def score(method: str, task: str, seed: int, final: tuple[float, float]) -> None:
+        path = tmp_path / method / task / f"seed{seed}" / HELDOUT_FILE
+        path.parent.mkdir(parents=True)
+        rows = [{"step": 1000, "policy": 9.0, "oracle": 9.0}, {"step": 2000, "policy": final[0], "oracle": final[1]}]
+        path.write_text(
+            json.dumps({"method": method, "task": task, "seed": seed, "heldout_episodes": 10, "checkpoints": rows})
+        )
+
+    score("no_prior", "cook", 0, (0.4, 0.1))
+    score("skillret", "cook", 0, (0.2, 0.1))
+    score("skillret", "cook", 1, (0.3, 0.2))
+    score("skillret", "breakfast", 0, (0.5, 0.25))
+    report = markdown_report({}, collect(tmp_path, PUBLISHED_HELDOUT))
+    table = report.split("### Held-out imitation error")[1]
+    assert "| skillret | 0.500 (0.250) | 0.250 (0.150) | 0.375 |" in table  # step-1000 rows never count
+    assert "| no_prior | — | 0.400 (0.100) | — |" in table
+    assert "(step 2000), mean over 1/2 seeds" in table
+    assert "Held-out" not in markdown_report({}, {})
 
 
 def test_best_checkpoint_ties_go_to_higher_progress(tmp_path: Path) -> None:

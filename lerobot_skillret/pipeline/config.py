@@ -63,6 +63,14 @@ class EvalSpec:
 
 
 @dataclass
+class HeldoutSpec:
+    """Demonstrations no run trains on (another generation seed), for `skillret-pipeline heldout`'s offline score."""
+
+    episodes: int = 10  # successful demonstrations per task
+    seed: int = 7  # generation seed; must differ from `data.seed`, or the "held-out" demos are the training ones
+
+
+@dataclass
 class PipelineConfig:
     output_dir: str = "outputs/pipeline"
     tasks: list[str] = field(default_factory=lambda: ["cleaning_up"])
@@ -77,6 +85,7 @@ class PipelineConfig:
     retrieval: RetrievalSpec = field(default_factory=RetrievalSpec)
     baselines: dict[str, TrainSpec] = field(default_factory=dict)  # act, diffusion, act_ft_prior, act_ft
     eval: EvalSpec = field(default_factory=EvalSpec)
+    heldout: HeldoutSpec = field(default_factory=HeldoutSpec)
 
     def __post_init__(self) -> None:
         unknown = [m for m in self.methods if m not in METHODS]
@@ -112,6 +121,11 @@ class PipelineConfig:
             raise ValueError(
                 f"pipeline config: `eval.batch_size`={self.eval.batch_size} exceeds `eval.n_episodes`="
                 f"{self.eval.n_episodes}; lerobot-eval needs batch_size <= n_episodes."
+            )
+        if self.heldout.seed == self.data.seed or self.heldout.episodes < 1:
+            raise ValueError(
+                f"pipeline config: `heldout` needs episodes >= 1 and a seed other than `data.seed`={self.data.seed} "
+                f"(got episodes={self.heldout.episodes}, seed={self.heldout.seed}); the training demos are not held out."
             )
         specs = {"skills": self.skills, "policy": self.policy} | {
             f"baselines.{k}": v for k, v in self.baselines.items()
@@ -159,6 +173,7 @@ def _build(cls: type, raw: dict[str, Any], where: str) -> Any:
                 "policy": TrainSpec,
                 "retrieval": RetrievalSpec,
                 "eval": EvalSpec,
+                "heldout": HeldoutSpec,
             }.get(name)
             if cls is PipelineConfig
             else None

@@ -7,6 +7,7 @@ Layout of the output folder (every path is an artifact; a stage is skipped when 
     retrieval/<task>_<mode>_seed<s>/                    retrieval.safetensors + report/ (skillret-retrieve)
     train/<method>/<task>/seed<s>                       stage-2 / baseline runs (lerobot-train)
     eval/<method>/<task>/seed<s>/step<k>                lerobot-eval outputs (eval_info.json, videos/)
+    heldout/demos_<task>, heldout/<method>/<task>/seed<s>.json   held-out demos and their imitation errors
     cells/<method>/<task>/seed<s>.json                  the protocol's summary of one (method, task, seed) cell
 """
 
@@ -81,7 +82,6 @@ class Plan:
 
     def data_stages(self) -> list[Stage]:
         d = self.cfg.data
-        common = ["--seed", str(d.seed), "--workers", str(d.workers)]  # low-dim only (config rejects cameras)
         play = Stage("data/play", self.play_root())
         play.command = [
             str(BIN / "skillret-generate"),
@@ -94,26 +94,32 @@ class Plan:
             str(d.play_episodes),
             "--steps-per-episode",
             str(d.play_steps),
-            *common,
+            *self._generation_args(d.seed),
         ]
         stages = [play] if self.needs_prior() else []
         for task in self.cfg.tasks:
-            demos = Stage(f"data/demos_{task}", self.demos_root(task))
-            demos.command = [
-                str(BIN / "skillret-generate"),
-                "demos",
-                "--task",
-                task,
-                "--root",
-                str(demos.partial),
-                "--repo-id",
-                self.repo_id(demos.output),
-                "--episodes",
-                str(d.demo_episodes),
-                *common,
-            ]
-            stages.append(demos)
+            stages.append(self._demos_stage(f"data/demos_{task}", self.demos_root(task), task, d.demo_episodes, d.seed))
         return stages
+
+    def _generation_args(self, seed: int) -> list[str]:
+        return ["--seed", str(seed), "--workers", str(self.cfg.data.workers)]  # low-dim only (no cameras)
+
+    def _demos_stage(self, name: str, root: Path, task: str, episodes: int, seed: int) -> Stage:
+        stage = Stage(name, root)
+        stage.command = [
+            str(BIN / "skillret-generate"),
+            "demos",
+            "--task",
+            task,
+            "--root",
+            str(stage.partial),
+            "--repo-id",
+            self.repo_id(stage.output),
+            "--episodes",
+            str(episodes),
+            *self._generation_args(seed),
+        ]
+        return stage
 
     def needs_prior(self) -> bool:
         """Play data is generated only if a method reads it: skills from the prior, or ACT's pre-training."""
@@ -271,12 +277,24 @@ class Plan:
         stage.after = lambda partial: _repoint(partial / "eval_info.json", partial, out)
         return stage
 
+    def heldout_root(self, task: str) -> Path:
+        return self.root / "heldout" / f"demos_{task}"
+
+    def heldout_stage(self, task: str) -> Stage:
+        """Demonstrations of `task` from another generation seed than the training ones (never trained on)."""
+        h = self.cfg.heldout
+        return self._demos_stage(f"heldout/demos_{task}", self.heldout_root(task), task, h.episodes, h.seed)
+
+    def heldout_path(self, cell: Cell) -> Path:
+        return self.root / "heldout" / cell.method / cell.task / f"seed{cell.seed}.json"
+
     @staticmethod
     def published_dir(results_dir: Path, cell: Cell) -> Path:
         """Where a finished cell's raw eval JSONs and summary are kept in the repository."""
         return results_dir / cell.method / cell.task / f"seed{cell.seed}"
 
     CELL_SUMMARIES = "cells/*/*/seed*.json"  # every `cell_path` below `root`
+    HELDOUT_SCORES = "heldout/*/*/seed*.json"  # every `heldout_path` below `root`
 
     def cell_path(self, cell: Cell) -> Path:
         return self.root / "cells" / cell.method / cell.task / f"seed{cell.seed}.json"

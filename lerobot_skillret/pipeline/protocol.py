@@ -9,6 +9,7 @@ from typing import Any
 
 from lerobot_skillret.files import write_json_atomic
 from lerobot_skillret.pipeline.plan import Cell, Plan
+from lerobot_skillret.pipeline.results import HELDOUT_FILE
 
 
 def read_eval(eval_dir: Path) -> dict[str, float | int]:
@@ -50,8 +51,8 @@ def summarise_cell(plan: Plan, cell: Cell, train_seconds: float | None, eval_sec
 
 
 def publish_cell(plan: Plan, cell: Cell, summary: dict[str, Any], results_dir: Path | None) -> None:
-    """Write the cell summary; copy it, the raw eval JSONs and the retrieval report's summary (retrieval methods)
-    into the results folder kept in the repository."""
+    """Write the cell summary; copy it, the raw eval JSONs, the retrieval report's summary (retrieval methods) and
+    the held-out errors (if scored) into the results folder kept in the repository."""
     write_json_atomic(plan.cell_path(cell), summary)
     if results_dir is None:
         return
@@ -64,6 +65,8 @@ def publish_cell(plan: Plan, cell: Cell, summary: dict[str, Any], results_dir: P
     retrieval_summary = plan.retrieval_summary(cell)
     if retrieval_summary is not None:
         shutil.copyfile(retrieval_summary, tmp / "retrieval_summary.json")
+    if plan.heldout_path(cell).exists():  # scored before this (re-)publication
+        shutil.copyfile(plan.heldout_path(cell), tmp / HELDOUT_FILE)
     (tmp / "cell.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
     shutil.rmtree(dest, ignore_errors=True)
     tmp.rename(dest)

@@ -16,10 +16,12 @@ from lerobot_skillret.files import write_atomic, write_text_atomic
 from lerobot_skillret.pipeline.config import METHODS
 
 PUBLISHED_CELLS = "*/*/seed*/cell.json"  # results_dir layout: <method>/<task>/seed<s>/cell.json
+HELDOUT_FILE = "heldout_error.json"  # beside a published cell: held-out imitation errors (`skillret-pipeline heldout`)
+PUBLISHED_HELDOUT = f"*/*/seed*/{HELDOUT_FILE}"
 
 
 def collect(folder: Path, pattern: str = PUBLISHED_CELLS) -> dict[tuple[str, str], list[dict]]:
-    """Every cell summary under `folder` matching `pattern`, grouped by (method, task)."""
+    """Every cell summary (or held-out score) under `folder` matching `pattern`, grouped by (method, task)."""
     cells: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for path in sorted(folder.glob(pattern)):
         cell = json.loads(path.read_text())
@@ -69,9 +71,44 @@ def markdown_table(cells: dict[tuple[str, str], list[dict]], metric: str = "succ
     return "\n".join(lines) + "\n"
 
 
-def markdown_report(cells: dict[tuple[str, str], list[dict]]) -> str:
-    """Both tables, success first (the seed's metric)."""
-    return "\n".join(f"### {METRICS[m]}\n\n{markdown_table(cells, m)}" for m in METRICS)
+def heldout_table(scores: dict[tuple[str, str], list[dict]]) -> str:
+    """Rows: methods; columns: tasks and their average; entries: the final checkpoint's held-out error of the
+    policy's skills, mean over seeds, with the oracle skills' error in parentheses."""
+    methods = _order({m for m, _ in scores})
+    tasks = sorted({t for _, t in scores})
+    lines = ["| method | " + " | ".join(tasks) + " | average |", "|---" * (len(tasks) + 2) + "|"]
+    seed_counts = set()
+    for method in methods:
+        row, means = [], []
+        for task in tasks:
+            finals = [run["checkpoints"][-1] for run in scores.get((method, task), [])]
+            if not finals:
+                row.append("—")
+                continue
+            seed_counts.add(len(finals))
+            means.append(np.mean([f["policy"] for f in finals]))
+            row.append(f"{means[-1]:.3f} ({np.mean([f['oracle'] for f in finals]):.3f})")
+        average = f"{np.mean(means):.3f}" if len(means) == len(tasks) else "—"
+        lines.append(f"| {method} | " + " | ".join(row) + f" | {average} |")
+    runs = [run for group in scores.values() for run in group]
+    steps = sorted({run["checkpoints"][-1]["step"] for run in runs})
+    episodes = sorted({run["heldout_episodes"] for run in runs})
+    lines += [
+        "",
+        f"Held-out imitation error of the final checkpoint (step {'/'.join(map(str, steps))}), mean over "
+        f"{'/'.join(map(str, sorted(seed_counts)))} seeds; oracle skills' error in parentheses; "
+        f"{'/'.join(map(str, episodes))} held-out demonstrations per task. Squared action error in the decoder's "
+        "[-1, 1] units, summed over action dimensions, averaged over steps; lower is better.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def markdown_report(cells: dict[tuple[str, str], list[dict]], heldout: dict[tuple[str, str], list[dict]]) -> str:
+    """Both rollout tables, success first (the seed's metric), then the held-out errors where scored."""
+    sections = [f"### {METRICS[m]}\n\n{markdown_table(cells, m)}" for m in METRICS]
+    if heldout:
+        sections.append(f"### Held-out imitation error (skillret variants)\n\n{heldout_table(heldout)}")
+    return "\n".join(sections)
 
 
 def bar_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> None:
@@ -105,9 +142,11 @@ def bar_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> None:
     plt.close(fig)
 
 
-def write_report(cells: dict[tuple[str, str], list[dict]], folder: Path) -> str:
-    """`results.md` (both tables) and `results.png` in `folder`; returns the markdown."""
-    report = markdown_report(cells)
+def write_report(
+    cells: dict[tuple[str, str], list[dict]], folder: Path, heldout: dict[tuple[str, str], list[dict]] | None = None
+) -> str:
+    """`results.md` (the tables) and `results.png` in `folder`; returns the markdown."""
+    report = markdown_report(cells, heldout or {})
     write_text_atomic(folder / "results.md", report)
     bar_plot(cells, folder / "results.png")
     return report

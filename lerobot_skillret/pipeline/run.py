@@ -1,6 +1,7 @@
 """`skillret-pipeline`: the whole method on the kitchen benchmark, one resumable command.
 
     skillret-pipeline run --config configs/pipeline/demo.yaml      # generate -> skills -> retrieval -> policy -> eval
+    skillret-pipeline heldout --config configs/pipeline/benchmark.yaml  # offline held-out error of trained cells
     skillret-pipeline table --results benchmarks/results/benchmark # markdown table + bar plot from raw eval JSONs
 
 Every stage runs a stock CLI (skillret-generate, lerobot-train, skillret-retrieve, lerobot-eval) as a subprocess.
@@ -21,9 +22,10 @@ from pathlib import Path
 import yaml
 
 from lerobot_skillret.pipeline.config import PipelineConfig
+from lerobot_skillret.pipeline.heldout import run_heldout
 from lerobot_skillret.pipeline.plan import RETRIEVAL_MODE, SKILLS_FROM_PRIOR, Cell, Plan
 from lerobot_skillret.pipeline.protocol import publish_cell, summarise_cell
-from lerobot_skillret.pipeline.results import collect, write_report
+from lerobot_skillret.pipeline.results import PUBLISHED_HELDOUT, collect, write_report
 from lerobot_skillret.pipeline.stages import Cancelled, Stage, StageRunner
 
 log = logging.getLogger("skillret.pipeline")
@@ -72,24 +74,44 @@ def run_cell(plan: Plan, runner: StageRunner, cell: Cell, results_dir: Path | No
     return summary
 
 
+def _runner(cfg: PipelineConfig, plan: Plan) -> StageRunner:
+    env = {"HF_HUB_OFFLINE": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    return StageRunner(plan.root, env=env | ({"OMP_NUM_THREADS": str(cfg.threads)} if cfg.threads else {}))
+
+
+def _results_dir(cfg: PipelineConfig) -> Path | None:
+    return Path(cfg.results_dir).resolve() if cfg.results_dir else None
+
+
+def _report(plan: Plan) -> str:
+    """The tables of every finished cell of the output folder, including other processes' or other method lists'."""
+    return write_report(collect(plan.root, Plan.CELL_SUMMARIES), plan.root, collect(plan.root, Plan.HELDOUT_SCORES))
+
+
 def run(cfg: PipelineConfig) -> Path:
     """Run (or continue) every stage of `cfg`; return the markdown table's path."""
     plan = Plan(cfg)
-    runner = StageRunner(
-        plan.root,
-        env={"HF_HUB_OFFLINE": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-        | ({"OMP_NUM_THREADS": str(cfg.threads)} if cfg.threads else {}),
-    )
-    results_dir = Path(cfg.results_dir).resolve() if cfg.results_dir else None
+    runner = _runner(cfg, plan)
     start = time.monotonic()
     for stage in plan.data_stages():
         runner.run(stage)
-    run_jobs(plan, runner, results_dir, cfg.jobs)
-    # every finished cell of the folder, including those of other processes or other method lists
-    print(write_report(collect(plan.root, Plan.CELL_SUMMARIES), plan.root))
+    run_jobs(plan, runner, _results_dir(cfg), cfg.jobs)
+    print(_report(plan))
     table_path = plan.root / "results.md"
     log.info("pipeline finished in %.1f min; table: %s", (time.monotonic() - start) / 60, table_path)
     return table_path
+
+
+def heldout(cfg: PipelineConfig) -> None:
+    """Score the trained skillret-variant cells of `cfg` on held-out demos; refresh the tables of the output folder
+    and of `results_dir`."""
+    plan = Plan(cfg)
+    results_dir = _results_dir(cfg)
+    run_heldout(plan, _runner(cfg, plan), results_dir)
+    print(_report(plan))
+    if results_dir is not None and results_dir.is_dir():
+        write_report(collect(results_dir), results_dir, collect(results_dir, PUBLISHED_HELDOUT))
+        log.info("tables refreshed: %s", results_dir / "results.md")
 
 
 def run_jobs(plan: Plan, runner: StageRunner, results_dir: Path | None, jobs: int) -> None:
@@ -160,6 +182,12 @@ def main(argv: list[str] | None = None) -> None:
     run_p = sub.add_parser("run", help="run or continue the pipeline described by a config file")
     run_p.add_argument("--config", required=True, type=Path, help="pipeline YAML (see configs/pipeline/)")
     run_p.add_argument("overrides", nargs="*", help="config overrides such as eval.n_episodes=10 output_dir=out/x")
+    heldout_p = sub.add_parser(
+        "heldout",
+        help="score the trained skillret variants of a config on held-out demos (offline; generates them once)",
+    )
+    heldout_p.add_argument("--config", required=True, type=Path, help="pipeline YAML (see configs/pipeline/)")
+    heldout_p.add_argument("overrides", nargs="*", help="config overrides such as seeds=[2] heldout.episodes=5")
     table_p = sub.add_parser("table", help="markdown table + bar plot from a folder of finished cells")
     table_p.add_argument(
         "--results",
@@ -169,15 +197,16 @@ def main(argv: list[str] | None = None) -> None:
     )
     args = parser.parse_args(argv)
     _log_to_stderr()
-    if args.command == "run":
+    if args.command in ("run", "heldout"):
         try:
-            run(PipelineConfig.from_yaml(args.config, parse_overrides(args.overrides)))
+            cfg = PipelineConfig.from_yaml(args.config, parse_overrides(args.overrides))
+            (run if args.command == "run" else heldout)(cfg)
         except (FileNotFoundError, ValueError, RuntimeError) as err:
             parser.exit(2, f"skillret-pipeline: {err}\n")
     else:
         if not args.results.is_dir():
             parser.exit(2, f"skillret-pipeline: {args.results} does not exist: no finished cells yet.\n")
-        print(write_report(collect(args.results), args.results))
+        print(write_report(collect(args.results), args.results, collect(args.results, PUBLISHED_HELDOUT)))
 
 
 if __name__ == "__main__":

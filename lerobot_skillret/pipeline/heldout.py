@@ -1,0 +1,86 @@
+"""Held-out imitation error: an offline score of the skillret variants' stage-2 checkpoints.
+
+Ten rollouts per checkpoint move success in steps of 10 points, too coarse to order the variants. Scored instead on
+demonstrations that no run trained on (another generation seed): at every window where a rollout would pick a skill
+(every H steps), the latent policy picks one from the F observations before it and the closed-loop decoder runs it
+along the demonstration's own observations (`SkillRetPolicy.imitation_error`). The oracle skill (the checkpoint's
+encoder on the window itself) gives the floor that the decoder allows.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
+from lerobot_skillret.files import write_json_atomic
+from lerobot_skillret.pipeline.config import SKILLRET_METHODS
+from lerobot_skillret.pipeline.plan import Cell, Plan
+from lerobot_skillret.pipeline.results import HELDOUT_FILE
+from lerobot_skillret.pipeline.stages import StageRunner
+from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
+
+log = logging.getLogger("skillret.pipeline")
+
+
+def skill_starts(columns: EpisodeColumns, horizon: int) -> torch.Tensor:
+    """Global frame indices where a rollout would query the policy: every H steps from each episode's start."""
+    start = columns.td["episode_start"].as_subclass(torch.Tensor)
+    frames = torch.arange(len(columns))
+    return frames[(frames - start) % horizon == 0]
+
+
+@torch.no_grad()
+def imitation_errors(checkpoint: Path, columns: EpisodeColumns) -> dict[str, float]:
+    """Mean per-window action error of a stage-2 checkpoint's skills (`policy`) and of the oracle's (`oracle`)."""
+    policy = SkillRetPolicy.from_pretrained(checkpoint).eval()
+    config = policy.config
+    if config.stage != "policy":
+        raise ValueError(f"{checkpoint} is a stage-1 (skills) checkpoint; score stage-2 (policy) checkpoints.")
+    sampler = WindowSampler(columns, config.history, config.horizon, keys=[*policy.low_dim_keys, "action"])
+    errors = policy.imitation_error(sampler.gather(skill_starts(columns, config.horizon)))
+    return {name: float(value.mean()) for name, value in errors.items()}
+
+
+def score_cell(plan: Plan, cell: Cell, columns: EpisodeColumns) -> dict[str, Any]:
+    """The held-out errors of every checkpoint the protocol evaluates for `cell` (the latest `max_checkpoints`)."""
+    rows = [{"step": step, **imitation_errors(ckpt, columns)} for step, ckpt in plan.checkpoints(cell)]
+    if not rows:
+        raise RuntimeError(f"no checkpoint to score for {cell}; did training save any (save_freq)?")
+    return {
+        "method": cell.method,
+        "task": cell.task,
+        "seed": cell.seed,
+        "heldout_episodes": plan.cfg.heldout.episodes,
+        "heldout_seed": plan.cfg.heldout.seed,
+        "frames": len(columns),
+        "checkpoints": rows,
+    }
+
+
+def run_heldout(plan: Plan, runner: StageRunner, results_dir: Path | None) -> None:
+    """Generate each task's held-out demos (a skippable stage) and score every trained skillret-variant cell.
+
+    Cells whose stage-2 run has not finished are left out; scores already written are reused. Scores of published
+    cells are copied next to their eval JSONs in `results_dir`."""
+    for task in plan.cfg.tasks:
+        cells = [
+            c for c in plan.cells() if c.task == task and c.method in SKILLRET_METHODS and plan.train_dir(c).is_dir()
+        ]
+        if not cells:
+            continue
+        runner.run(plan.heldout_stage(task))
+        root = plan.heldout_root(task)
+        columns = EpisodeColumns.from_dataset(plan.repo_id(root), root)
+        for cell in cells:
+            path = plan.heldout_path(cell)
+            if not path.exists():
+                write_json_atomic(path, score_cell(plan, cell, columns))
+                log.info("[held-out] %s/%s/seed%d scored", cell.method, cell.task, cell.seed)
+            published = None if results_dir is None else plan.published_dir(results_dir, cell)
+            if published is not None and published.is_dir():
+                write_json_atomic(published / HELDOUT_FILE, json.loads(path.read_text()))
