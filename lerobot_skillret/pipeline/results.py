@@ -133,7 +133,7 @@ def bar_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> None:
             xs = np.arange(len(tasks)) + (i - (len(methods) - 1) / 2) * width
             ax.bar(xs, means, width, yerr=stds, capsize=2, label=method)
         ax.set_xticks(np.arange(len(tasks)), tasks)
-        ax.set_ylabel(label.replace(" (", "\n("))
+        ax.set_ylabel(label.split(" (")[0] + " (%)")  # the tables spell out what progress counts
         ax.set_ylim(0, 100)
     axes[0].legend(fontsize=7, ncols=4)
     fig.suptitle("Panda kitchen: best checkpoint per seed, mean ± std over seeds")
