@@ -69,7 +69,7 @@ def test_smoke_pipeline_survives_a_kill_and_produces_every_artifact(tmp_path: Pa
     heldout = [CLI, "heldout", "--config", "configs/pipeline/smoke.yaml", *overrides, "heldout.episodes=1"]
     scored = subprocess.run(heldout, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
     assert scored.returncode == 0, scored.stderr[-3000:]
-    assert "[run ] heldout/demos_breakfast" in scored.stderr
+    assert "[run ] heldout/seed7_n1/demos_breakfast" in scored.stderr
     errors = json.loads((published / "skillret" / "breakfast" / "seed0" / "heldout_error.json").read_text())
     assert [row["step"] for row in errors["checkpoints"]] == [2, 4] and errors["frames"] > 0
     assert all(0.0 <= row[k] < float("inf") for row in errors["checkpoints"] for k in ("policy", "oracle"))

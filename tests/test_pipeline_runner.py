@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_skillret.pipeline.config import PipelineConfig, RetrievalSpec
+from lerobot_skillret.pipeline.config import EvalSpec, PipelineConfig, RetrievalSpec, TrainSpec
 from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.protocol import summarise_cell
 from lerobot_skillret.pipeline.results import (
@@ -128,7 +128,10 @@ def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"`eval\.max_checkpoints` must be an integer >= 1 \(got 0\)"):
         PipelineConfig.from_yaml(path)
     path.write_text("heldout: {seed: 0}\n")  # data.seed is 0: the "held-out" demos would be the training ones
-    with pytest.raises(ValueError, match=r"`heldout` needs episodes >= 1 and a seed other than `data\.seed`=0"):
+    with pytest.raises(ValueError, match=r"`heldout\.seed` equals `data\.seed`=0"):
+        PipelineConfig.from_yaml(path)
+    path.write_text("heldout: {episodes: 0}\n")
+    with pytest.raises(ValueError, match=r"`heldout\.episodes` must be an integer >= 1 \(got 0\)"):
         PipelineConfig.from_yaml(path)
     path.write_text("skills: {config_path: configs/policy/cpu.jsn}\n")
     with pytest.raises(FileNotFoundError, match=r"`skills\.config_path` configs/policy/cpu\.jsn not found"):
@@ -203,6 +206,60 @@ def test_heldout_table_is_the_final_checkpoints_mean_over_seeds(tmp_path: Path) 
     assert "| no_prior | — | 0.400 (0.100) | — |" in table
     assert "(step 2000), mean over 1/2 seeds" in table
     assert "Held-out" not in markdown_report({}, {})
+
+
+def test_heldout_scores_trained_cells_once_and_publishes_only_its_own(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Unfinished cells are skipped, scores are reused until the evaluated checkpoints change, and a published cell
+    of another output folder keeps its own score."""
+    from lerobot_skillret.pipeline import heldout
+
+    scored: list[Path] = []
+
+    def fake_errors(checkpoint: Path, columns: object) -> dict[str, float]:
+        scored.append(checkpoint)
+        return {"policy": 0.5, "oracle": 0.1}
+
+    monkeypatch.setattr(heldout, "imitation_errors", fake_errors)
+    monkeypatch.setattr(heldout.EpisodeColumns, "from_dataset", lambda repo_id, root: [0] * 7)
+    methods = ["skillret", "no_retrieval", "act"]
+    cfg = PipelineConfig(
+        output_dir=str(tmp_path / "out"),
+        tasks=["cook"],
+        methods=methods,
+        seeds=[0, 1],
+        baselines={"act": TrainSpec()},
+        eval=EvalSpec(max_checkpoints=2),
+    )
+    plan, results = Plan(cfg), tmp_path / "results"
+    runner = StageRunner(plan.root)
+    monkeypatch.setattr(runner, "run", lambda stage: stage.output.mkdir(parents=True, exist_ok=True))
+
+    def train(cell: Cell, steps: list[int], output_dir: Path) -> None:
+        for step in steps:
+            (plan.train_dir(cell) / "checkpoints" / f"{step:06d}" / "pretrained_model").mkdir(parents=True)
+        published = plan.published_dir(results, cell)
+        published.mkdir(parents=True)
+        (published / "cell.json").write_text(json.dumps({"output_dir": str(output_dir)}))
+
+    ours, theirs, unfinished = Cell("skillret", "cook", 0), Cell("no_retrieval", "cook", 0), Cell("skillret", "cook", 1)
+    train(ours, [500, 1000], plan.root)
+    train(theirs, [1000], tmp_path / "elsewhere")
+    train(Cell("act", "cook", 0), [1000], plan.root)  # a baseline: nothing to score
+    heldout.run_heldout(plan, runner, results)
+    assert len(scored) == 3 and not plan.heldout_path(unfinished).exists()
+    assert plan.heldout_path(ours).parent.parent.parent == plan.root / "heldout" / "seed7_n10"
+    record = json.loads((plan.published_dir(results, ours) / HELDOUT_FILE).read_text())
+    assert [r["step"] for r in record["checkpoints"]] == [500, 1000] and record["frames"] == 7
+    assert not (plan.published_dir(results, theirs) / HELDOUT_FILE).exists()
+
+    heldout.run_heldout(plan, runner, results)  # nothing changed: nothing rescored
+    assert len(scored) == 3
+    (plan.train_dir(ours) / "checkpoints" / "001500" / "pretrained_model").mkdir(parents=True)
+    heldout.run_heldout(plan, runner, results)  # evaluated checkpoints are now 1000 and 1500
+    assert len(scored) == 5
+    assert [r["step"] for r in json.loads(plan.heldout_path(ours).read_text())["checkpoints"]] == [1000, 1500]
 
 
 def test_best_checkpoint_ties_go_to_higher_progress(tmp_path: Path) -> None:

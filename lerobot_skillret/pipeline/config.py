@@ -122,10 +122,14 @@ class PipelineConfig:
                 f"pipeline config: `eval.batch_size`={self.eval.batch_size} exceeds `eval.n_episodes`="
                 f"{self.eval.n_episodes}; lerobot-eval needs batch_size <= n_episodes."
             )
-        if self.heldout.seed == self.data.seed or self.heldout.episodes < 1:
+        if self.heldout.seed == self.data.seed:
             raise ValueError(
-                f"pipeline config: `heldout` needs episodes >= 1 and a seed other than `data.seed`={self.data.seed} "
-                f"(got episodes={self.heldout.episodes}, seed={self.heldout.seed}); the training demos are not held out."
+                f"pipeline config: `heldout.seed` equals `data.seed`={self.data.seed}: those demos are the training "
+                "ones, not held out; pick another generation seed."
+            )
+        if not isinstance(self.heldout.episodes, int) or self.heldout.episodes < 1:
+            raise ValueError(
+                f"pipeline config: `heldout.episodes` must be an integer >= 1 (got {self.heldout.episodes!r})."
             )
         specs = {"skills": self.skills, "policy": self.policy} | {
             f"baselines.{k}": v for k, v in self.baselines.items()

@@ -17,7 +17,7 @@ from typing import Any
 import torch
 
 from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
-from lerobot_skillret.files import write_json_atomic
+from lerobot_skillret.files import write_json_atomic, write_text_atomic
 from lerobot_skillret.pipeline.config import SKILLRET_METHODS
 from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.results import HELDOUT_FILE
@@ -49,8 +49,6 @@ def imitation_errors(checkpoint: Path, columns: EpisodeColumns) -> dict[str, flo
 def score_cell(plan: Plan, cell: Cell, columns: EpisodeColumns) -> dict[str, Any]:
     """The held-out errors of every checkpoint the protocol evaluates for `cell` (the latest `max_checkpoints`)."""
     rows = [{"step": step, **imitation_errors(ckpt, columns)} for step, ckpt in plan.checkpoints(cell)]
-    if not rows:
-        raise RuntimeError(f"no checkpoint to score for {cell}; did training save any (save_freq)?")
     return {
         "method": cell.method,
         "task": cell.task,
@@ -62,25 +60,40 @@ def score_cell(plan: Plan, cell: Cell, columns: EpisodeColumns) -> dict[str, Any
     }
 
 
+def _is_current(path: Path, steps: list[int]) -> bool:
+    """A stored score counts only if it covers the checkpoints the protocol evaluates now."""
+    return path.exists() and [r["step"] for r in json.loads(path.read_text())["checkpoints"]] == steps
+
+
+def publish_heldout(plan: Plan, cell: Cell, results_dir: Path) -> None:
+    """Copy `cell`'s score next to its published eval JSONs, if those came from this output folder."""
+    published = plan.published_dir(results_dir, cell)
+    summary = published / "cell.json"
+    if summary.is_file() and json.loads(summary.read_text()).get("output_dir") == str(plan.root):
+        write_text_atomic(published / HELDOUT_FILE, plan.heldout_path(cell).read_text())
+
+
 def run_heldout(plan: Plan, runner: StageRunner, results_dir: Path | None) -> None:
     """Generate each task's held-out demos (a skippable stage) and score every trained skillret-variant cell.
 
-    Cells whose stage-2 run has not finished are left out; scores already written are reused. Scores of published
-    cells are copied next to their eval JSONs in `results_dir`."""
+    Cells whose stage-2 run has not finished are left out; a stored score is reused while it covers the checkpoints
+    the protocol evaluates. Scores are copied next to the cells' published eval JSONs in `results_dir`."""
+    trained = [c for c in plan.cells() if c.method in SKILLRET_METHODS and plan.train_dir(c).is_dir()]
+    if not trained:
+        log.warning("no trained skillret-variant cell in %s: nothing to score", plan.root)
     for task in plan.cfg.tasks:
-        cells = [
-            c for c in plan.cells() if c.task == task and c.method in SKILLRET_METHODS and plan.train_dir(c).is_dir()
-        ]
-        if not cells:
-            continue
-        runner.run(plan.heldout_stage(task))
-        root = plan.heldout_root(task)
-        columns = EpisodeColumns.from_dataset(plan.repo_id(root), root)
-        for cell in cells:
-            path = plan.heldout_path(cell)
-            if not path.exists():
+        columns = None  # loaded only if a cell of the task needs scoring
+        for cell in (c for c in trained if c.task == task):
+            path, steps = plan.heldout_path(cell), [step for step, _ in plan.checkpoints(cell)]
+            if not steps:
+                log.warning("[held-out] %s/%s/seed%d has no checkpoint: skipped", cell.method, task, cell.seed)
+                continue
+            if not _is_current(path, steps):
+                if columns is None:
+                    runner.run(plan.heldout_stage(task))
+                    root = plan.heldout_root(task)
+                    columns = EpisodeColumns.from_dataset(plan.repo_id(root), root)
                 write_json_atomic(path, score_cell(plan, cell, columns))
-                log.info("[held-out] %s/%s/seed%d scored", cell.method, cell.task, cell.seed)
-            published = None if results_dir is None else plan.published_dir(results_dir, cell)
-            if published is not None and published.is_dir():
-                write_json_atomic(published / HELDOUT_FILE, json.loads(path.read_text()))
+                log.info("[held-out] %s/%s/seed%d scored", cell.method, task, cell.seed)
+            if results_dir is not None:
+                publish_heldout(plan, cell, results_dir)

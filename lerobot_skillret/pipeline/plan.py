@@ -7,7 +7,8 @@ Layout of the output folder (every path is an artifact; a stage is skipped when 
     retrieval/<task>_<mode>_seed<s>/                    retrieval.safetensors + report/ (skillret-retrieve)
     train/<method>/<task>/seed<s>                       stage-2 / baseline runs (lerobot-train)
     eval/<method>/<task>/seed<s>/step<k>                lerobot-eval outputs (eval_info.json, videos/)
-    heldout/demos_<task>, heldout/<method>/<task>/seed<s>.json   held-out demos and their imitation errors
+    heldout/seed<g>_n<n>/demos_<task>                   held-out demos (generation seed g, n episodes)
+    heldout/seed<g>_n<n>/<method>/<task>/seed<s>.json   their imitation errors (skillret-pipeline heldout)
     cells/<method>/<task>/seed<s>.json                  the protocol's summary of one (method, task, seed) cell
 """
 
@@ -246,6 +247,8 @@ class Plan:
     # --- evaluation ---------------------------------------------------------------------------------------
     def checkpoints(self, cell: Cell) -> list[tuple[int, Path]]:
         """The run's saved checkpoints as (step, pretrained_model dir), latest `max_checkpoints` of them."""
+        if not (self.train_dir(cell) / "checkpoints").is_dir():
+            return []
         ckpts = sorted(
             (int(p.name), p / "pretrained_model")
             for p in (self.train_dir(cell) / "checkpoints").iterdir()
@@ -277,16 +280,25 @@ class Plan:
         stage.after = lambda partial: _repoint(partial / "eval_info.json", partial, out)
         return stage
 
+    def heldout_dir(self) -> Path:
+        """One folder per held-out set, so changing `heldout:` never mixes demos or scores of two sets."""
+        h = self.cfg.heldout
+        return self.root / "heldout" / f"seed{h.seed}_n{h.episodes}"
+
     def heldout_root(self, task: str) -> Path:
-        return self.root / "heldout" / f"demos_{task}"
+        return self.heldout_dir() / f"demos_{task}"
 
     def heldout_stage(self, task: str) -> Stage:
         """Demonstrations of `task` from another generation seed than the training ones (never trained on)."""
-        h = self.cfg.heldout
-        return self._demos_stage(f"heldout/demos_{task}", self.heldout_root(task), task, h.episodes, h.seed)
+        h, root = self.cfg.heldout, self.heldout_root(task)
+        return self._demos_stage(str(root.relative_to(self.root)), root, task, h.episodes, h.seed)
 
     def heldout_path(self, cell: Cell) -> Path:
-        return self.root / "heldout" / cell.method / cell.task / f"seed{cell.seed}.json"
+        return self.heldout_dir() / cell.method / cell.task / f"seed{cell.seed}.json"
+
+    def heldout_scores(self) -> str:
+        """Glob pattern, relative to `root`, of every `heldout_path` of this held-out set."""
+        return str((self.heldout_dir() / "*" / "*" / "seed*.json").relative_to(self.root))
 
     @staticmethod
     def published_dir(results_dir: Path, cell: Cell) -> Path:
@@ -294,7 +306,6 @@ class Plan:
         return results_dir / cell.method / cell.task / f"seed{cell.seed}"
 
     CELL_SUMMARIES = "cells/*/*/seed*.json"  # every `cell_path` below `root`
-    HELDOUT_SCORES = "heldout/*/*/seed*.json"  # every `heldout_path` below `root`
 
     def cell_path(self, cell: Cell) -> Path:
         return self.root / "cells" / cell.method / cell.task / f"seed{cell.seed}.json"

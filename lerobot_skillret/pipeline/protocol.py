@@ -66,7 +66,7 @@ def publish_cell(plan: Plan, cell: Cell, summary: dict[str, Any], results_dir: P
     if retrieval_summary is not None:
         shutil.copyfile(retrieval_summary, tmp / "retrieval_summary.json")
     if plan.heldout_path(cell).exists():  # scored before this (re-)publication
-        shutil.copyfile(plan.heldout_path(cell), tmp / HELDOUT_FILE)
+        shutil.copyfile(plan.heldout_path(cell), tmp / HELDOUT_FILE)  # bytes unchanged, as `publish_heldout`
     (tmp / "cell.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
     shutil.rmtree(dest, ignore_errors=True)
     tmp.rename(dest)

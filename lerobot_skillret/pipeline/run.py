@@ -22,7 +22,6 @@ from pathlib import Path
 import yaml
 
 from lerobot_skillret.pipeline.config import PipelineConfig
-from lerobot_skillret.pipeline.heldout import run_heldout
 from lerobot_skillret.pipeline.plan import RETRIEVAL_MODE, SKILLS_FROM_PRIOR, Cell, Plan
 from lerobot_skillret.pipeline.protocol import publish_cell, summarise_cell
 from lerobot_skillret.pipeline.results import PUBLISHED_HELDOUT, collect, write_report
@@ -85,7 +84,7 @@ def _results_dir(cfg: PipelineConfig) -> Path | None:
 
 def _report(plan: Plan) -> str:
     """The tables of every finished cell of the output folder, including other processes' or other method lists'."""
-    return write_report(collect(plan.root, Plan.CELL_SUMMARIES), plan.root, collect(plan.root, Plan.HELDOUT_SCORES))
+    return write_report(collect(plan.root, Plan.CELL_SUMMARIES), plan.root, collect(plan.root, plan.heldout_scores()))
 
 
 def run(cfg: PipelineConfig) -> Path:
@@ -105,8 +104,12 @@ def run(cfg: PipelineConfig) -> Path:
 def heldout(cfg: PipelineConfig) -> None:
     """Score the trained skillret-variant cells of `cfg` on held-out demos; refresh the tables of the output folder
     and of `results_dir`."""
+    from lerobot_skillret.pipeline.heldout import run_heldout  # torch and the policy: only this command needs them
+
     plan = Plan(cfg)
     results_dir = _results_dir(cfg)
+    if results_dir is not None and not results_dir.is_dir():
+        log.warning("results_dir %s does not exist: scores are kept in %s only", results_dir, plan.root)
     run_heldout(plan, _runner(cfg, plan), results_dir)
     print(_report(plan))
     if results_dir is not None and results_dir.is_dir():
@@ -187,7 +190,7 @@ def main(argv: list[str] | None = None) -> None:
         help="score the trained skillret variants of a config on held-out demos (offline; generates them once)",
     )
     heldout_p.add_argument("--config", required=True, type=Path, help="pipeline YAML (see configs/pipeline/)")
-    heldout_p.add_argument("overrides", nargs="*", help="config overrides such as seeds=[2] heldout.episodes=5")
+    heldout_p.add_argument("overrides", nargs="*", help="config overrides such as seeds=[2] output_dir=outputs/x")
     table_p = sub.add_parser("table", help="markdown table + bar plot from a folder of finished cells")
     table_p.add_argument(
         "--results",
