@@ -12,13 +12,14 @@ from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.results import HELDOUT_FILE
 
 
-def read_eval(eval_dir: Path) -> dict[str, float | int]:
-    """Success rate in [0, 1], mean subtask progress in [0, 1] and rollout count from a lerobot-eval output folder.
+def read_eval(eval_info: Path) -> dict[str, float | int]:
+    """Success rate in [0, 1], mean subtask progress in [0, 1] and rollout count from an `eval_info.json` of
+    lerobot-eval (or its published copy, `eval_step<k>.json`).
 
     Progress is lerobot-eval's `avg_max_reward`: the kitchen's reward is the fraction of the goals unmet at reset
     that are met.
     """
-    overall = json.loads((eval_dir / "eval_info.json").read_text())["overall"]
+    overall = json.loads(eval_info.read_text())["overall"]
     return {
         "success": float(overall["pc_success"]) / 100.0,
         "subgoals": float(overall["avg_max_reward"]),
@@ -31,7 +32,9 @@ def summarise_cell(plan: Plan, cell: Cell, train_seconds: float | None, eval_sec
 
     Ties (e.g. every checkpoint at 0%) go to the higher subtask progress, then to the later checkpoint.
     """
-    rows = [{"step": step, **read_eval(plan.eval_dir(cell, step))} for step, _ in plan.checkpoints(cell)]
+    rows = [
+        {"step": step, **read_eval(plan.eval_dir(cell, step) / "eval_info.json")} for step, _ in plan.checkpoints(cell)
+    ]
     if not rows:
         raise RuntimeError(f"no evaluated checkpoint for {cell}; did training save any (save_freq)?")
     best = max(rows, key=lambda r: (r["success"], r["subgoals"], r["step"]))
