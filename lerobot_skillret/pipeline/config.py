@@ -113,10 +113,10 @@ class PipelineConfig:
             raise ValueError(f"pipeline config: `jobs` must be >= 1 (got {self.jobs}); use the number of cores.")
         if not self.tasks or not self.seeds:
             raise ValueError("pipeline config: `tasks` and `seeds` must each name at least one entry.")
-        for name in ("n_episodes", "batch_size", "max_checkpoints"):
-            value = getattr(self.eval, name)
+        counts = {f"eval.{name}": getattr(self.eval, name) for name in ("n_episodes", "batch_size", "max_checkpoints")}
+        for name, value in (counts | {"heldout.episodes": self.heldout.episodes}).items():
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-                raise ValueError(f"pipeline config: `eval.{name}` must be an integer >= 1 (got {value!r}).")
+                raise ValueError(f"pipeline config: `{name}` must be an integer >= 1 (got {value!r}).")
         if self.eval.batch_size > self.eval.n_episodes:
             raise ValueError(
                 f"pipeline config: `eval.batch_size`={self.eval.batch_size} exceeds `eval.n_episodes`="
@@ -126,10 +126,6 @@ class PipelineConfig:
             raise ValueError(
                 f"pipeline config: `heldout.seed` equals `data.seed`={self.data.seed}: those demos are the training "
                 "ones, not held out; pick another generation seed."
-            )
-        if not isinstance(self.heldout.episodes, int) or self.heldout.episodes < 1:
-            raise ValueError(
-                f"pipeline config: `heldout.episodes` must be an integer >= 1 (got {self.heldout.episodes!r})."
             )
         specs = {"skills": self.skills, "policy": self.policy} | {
             f"baselines.{k}": v for k, v in self.baselines.items()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 from collections import defaultdict
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -44,24 +45,40 @@ def _scores(runs: list[dict], metric: str) -> np.ndarray:
     return 100.0 * np.array([r[metric] for r in runs if metric in r])
 
 
-def markdown_table(cells: dict[tuple[str, str], list[dict]], metric: str = "success") -> str:
-    """Rows: methods; columns: tasks and their average; entries: metric % mean +- std (population) (seeds)."""
-    if not cells:
-        return "_No finished cells yet._\n"
-    methods = _order({m for m, _ in cells})
-    tasks = sorted({t for _, t in cells})
+def _grid(
+    groups: dict[tuple[str, str], list[dict]], entry: Callable[[list[dict]], tuple[str, float] | None], digits: int
+) -> list[str]:
+    """Markdown rows: methods (canonical order); columns: tasks and the average of their means (only when every task
+    has an entry). `entry` turns a (method, task) group into its text and mean, or None when it has nothing."""
+    methods = _order({m for m, _ in groups})
+    tasks = sorted({t for _, t in groups})
     lines = ["| method | " + " | ".join(tasks) + " | average |", "|---" * (len(tasks) + 2) + "|"]
     for method in methods:
         row, means = [], []
         for task in tasks:
-            scores = _scores(cells.get((method, task), []), metric)
-            if not scores.size:
+            found = entry(groups.get((method, task), []))
+            if found is None:
                 row.append("—")
                 continue
-            means.append(scores.mean())
-            row.append(f"{scores.mean():.1f} ± {scores.std():.1f} ({scores.size})")
-        average = f"{np.mean(means):.1f}" if len(means) == len(tasks) else "—"
+            row.append(found[0])
+            means.append(found[1])
+        average = f"{np.mean(means):.{digits}f}" if len(means) == len(tasks) else "—"
         lines.append(f"| {method} | " + " | ".join(row) + f" | {average} |")
+    return lines
+
+
+def markdown_table(cells: dict[tuple[str, str], list[dict]], metric: str = "success") -> str:
+    """Rows: methods; columns: tasks and their average; entries: metric % mean +- std (population) (seeds)."""
+    if not cells:
+        return "_No finished cells yet._\n"
+
+    def entry(runs: list[dict]) -> tuple[str, float] | None:
+        scores = _scores(runs, metric)
+        if not scores.size:
+            return None
+        return f"{scores.mean():.1f} ± {scores.std():.1f} ({scores.size})", scores.mean()
+
+    lines = _grid(cells, entry, digits=1)
     n_eps = sorted({r["n_episodes"] for runs in cells.values() for r in runs})
     lines.append("")
     lines.append(
@@ -74,29 +91,23 @@ def markdown_table(cells: dict[tuple[str, str], list[dict]], metric: str = "succ
 def heldout_table(scores: dict[tuple[str, str], list[dict]]) -> str:
     """Rows: methods; columns: tasks and their average; entries: the final checkpoint's held-out error of the
     policy's skills, mean over seeds, with the oracle skills' error in parentheses."""
-    methods = _order({m for m, _ in scores})
-    tasks = sorted({t for _, t in scores})
-    lines = ["| method | " + " | ".join(tasks) + " | average |", "|---" * (len(tasks) + 2) + "|"]
-    seed_counts = set()
-    for method in methods:
-        row, means = [], []
-        for task in tasks:
-            finals = [run["checkpoints"][-1] for run in scores.get((method, task), [])]
-            if not finals:
-                row.append("—")
-                continue
-            seed_counts.add(len(finals))
-            means.append(np.mean([f["policy"] for f in finals]))
-            row.append(f"{means[-1]:.3f} ({np.mean([f['oracle'] for f in finals]):.3f})")
-        average = f"{np.mean(means):.3f}" if len(means) == len(tasks) else "—"
-        lines.append(f"| {method} | " + " | ".join(row) + f" | {average} |")
+
+    def entry(runs: list[dict]) -> tuple[str, float] | None:
+        finals = [run["checkpoints"][-1] for run in runs]
+        if not finals:
+            return None
+        policy = float(np.mean([f["policy"] for f in finals]))
+        return f"{policy:.3f} ({np.mean([f['oracle'] for f in finals]):.3f})", policy
+
+    lines = _grid(scores, entry, digits=3)
     runs = [run for group in scores.values() for run in group]
     steps = sorted({run["checkpoints"][-1]["step"] for run in runs})
     episodes = sorted({run["heldout_episodes"] for run in runs})
+    seed_counts = sorted({len(group) for group in scores.values()})
     lines += [
         "",
         f"Held-out imitation error of the final checkpoint (step {'/'.join(map(str, steps))}), mean over "
-        f"{'/'.join(map(str, sorted(seed_counts)))} seeds; oracle skills' error in parentheses; "
+        f"{'/'.join(map(str, seed_counts))} seeds; oracle skills' error in parentheses; "
         f"{'/'.join(map(str, episodes))} held-out demonstrations per task. Squared action error in the decoder's "
         "[-1, 1] units, summed over action dimensions, averaged over steps; lower is better.",
     ]
