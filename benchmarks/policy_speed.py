@@ -24,9 +24,9 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 import torch
 from lerobot.configs.types import FeatureType
 from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
-from lerobot.datasets.utils import dataset_to_policy_features
 from lerobot.policies.act.configuration_act import ACTConfig
 from lerobot.policies.act.modeling_act import ACTPolicy
+from lerobot.utils.feature_utils import dataset_to_policy_features
 
 from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
 from lerobot_skillret.policy.configuration_skillret import SkillRetConfig

@@ -327,7 +327,7 @@ def test_policy_window_source_decodes_videos_with_the_configured_backend(tmp_pat
 
     root = _make_video_dataset(tmp_path / "vid", [7, 1, 9])
     source = WindowSource("test/video", root, ["observation.state"], [VIDEO_KEY], 3, 4, video_backend="pyav")
-    assert source.sampler.frames.dataset.video_backend == "pyav"
+    assert source.sampler.frames.dataset._video_backend == "pyav"
     anchors = torch.tensor([16, 7, 0])
     batch = source.gather(anchors, "cpu")
     deltas = [d / 20 for d in range(-2, 4)]

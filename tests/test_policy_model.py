@@ -115,7 +115,7 @@ def test_kl_and_temporal_terms_reach_the_encoder(prior_root):
     policy = build_policy(config, PRIOR_REPO, prior_root)
     batch = training_batch(config, PRIOR_REPO, prior_root)
     window = policy._window(batch)
-    pair_raw, offset = policy._data().own.pair(batch["index"], config.tc_max_offset, "cpu")
+    pair_raw, offset = policy._data(batch["index"]).own.pair(batch["index"], config.tc_max_offset, "cpu")
     _, terms, _ = policy.skills.loss(window, policy._window(pair_raw), offset)
     assert float(terms["kl_loss"]) > 0 and float(terms["tc_loss"]) > 0
     for name in ("kl_loss", "tc_loss"):
@@ -137,7 +137,7 @@ def test_padded_steps_do_not_contribute(prior_root):
     changed["action"] = torch.where(pad[..., None], torch.full_like(batch["action"], 0.9), batch["action"])
     for key in ("observation.state", "observation.environment_state"):
         changed[key] = torch.where(pad[..., None], batch[key] + 5.0, batch[key])
-    pair_raw, offset = policy._data().own.pair(batch["index"], config.tc_max_offset, "cpu")
+    pair_raw, offset = policy._data(batch["index"]).own.pair(batch["index"], config.tc_max_offset, "cpu")
     pair = policy._window(pair_raw)
     total, terms, mean = policy.skills.loss(policy._window(batch), pair, offset)
     total2, terms2, mean2 = policy.skills.loss(policy._window(changed), pair, offset)
@@ -190,7 +190,7 @@ def test_stage2_forward_with_retrieval_and_ablations(stage1_dir, prior_root, tar
     assert "policy_retrieved_loss" not in info and "policy_target_loss" in info
     no_prior = stage2_policy(stage1_dir, target_root, use_retrieval=False)
     _, info = no_prior.forward(batch)
-    assert "reconstruction_loss" in info and no_prior._data().prior is None
+    assert "reconstruction_loss" in info and no_prior._training_data.prior is None
     frozen = stage2_policy(stage1_dir, target_root, use_retrieval=False, finetune_skills=False)
     _, info = frozen.forward(batch)
     assert "reconstruction_loss" not in info and not any(p.requires_grad for p in frozen.skills.parameters())
@@ -385,8 +385,11 @@ def test_cameras_train_both_stages_and_act(tmp_path):
     )
     loss, info = two.forward(training_batch(two.config, PRIOR_REPO, root, size=2))
     assert "policy_target_loss" in info and torch.isfinite(loss)
-    for source in (two._data().own, two._data().prior):  # --policy.video_backend reaches the frames it decodes
-        assert source.sampler.frames.dataset.video_backend == "pyav"
+    for source in (
+        two._training_data.own,
+        two._training_data.prior,
+    ):  # --policy.video_backend reaches the frames it decodes
+        assert source.sampler.frames.dataset._video_backend == "pyav"
     two.reset()
     batch = training_batch(two.config, PRIOR_REPO, root, size=2)
     observation = {key: batch[key][:, 0] for key in two.observation_keys}
@@ -453,7 +456,7 @@ def test_fast_windows_equal_lerobots_windows(prior_root, stage):
     assert fast.config.observation_delta_indices is None and fast.config.action_delta_indices is None
     frames = batch_at(fast.config, PRIOR_REPO, prior_root, indices)
     assert frames["observation.state"].ndim == 2
-    gathered = fast._data().own.gather(frames["index"], "cpu")
+    gathered = fast._data(frames["index"]).own.gather(frames["index"], "cpu")
     standard = build_policy(tiny_config(stage=stage), PRIOR_REPO, prior_root).config
     reference = batch_at(standard, PRIOR_REPO, prior_root, indices)
     for key in ("observation.state", "observation.environment_state", "action", "action_is_pad"):

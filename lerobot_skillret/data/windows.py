@@ -21,7 +21,7 @@ torch's intra-op threads compete with other work for the cores (training, other 
 
 Camera windows (optional, `WindowSampler(..., frames=FrameReader(...))`): images and videos cannot live in the
 column table, so `FrameReader` decodes them through LeRobot's own readers (the HF image column, `_query_videos`
-for videos), once per distinct frame of a batch: overlapping windows share their frames, whereas `__getitem__`
+of its `DatasetReader` for videos), once per distinct frame of a batch: overlapping windows share their frames, whereas `__getitem__`
 decodes F+H-1 frames per window. Decoding itself dominates, so the gain is modest at random anchors (4.5 vs
 5.4 ms per F=H=10 window of one 8x8 camera) and grows with overlap.
 
@@ -243,7 +243,7 @@ class FrameReader:
     """Camera frames (image or video features) of a local LeRobotDataset by global frame index.
 
     Decoding is LeRobot's own, so frames are bit-identical to `LeRobotDataset.__getitem__`'s: image features through
-    the HF dataset's image column, video features through `LeRobotDataset._query_videos` (one decoder call per
+    the HF dataset's image column, video features through its `DatasetReader._query_videos` (one decoder call per
     episode and batch, at the frames' stored timestamps).
     """
 
@@ -292,7 +292,7 @@ class FrameReader:
                 in_episode = unique[self._episode[unique] == episode]
                 timestamps = self._timestamp[in_episode].tolist()
                 query = dict.fromkeys(self._video_keys, timestamps)
-                for key, value in self.dataset._query_videos(query, int(episode)).items():
+                for key, value in self.dataset.reader._query_videos(query, int(episode)).items():
                     decoded[key].append(value if len(in_episode) > 1 else value.unsqueeze(0))  # it squeezes n=1
             frames.update({key: torch.cat(parts) for key, parts in decoded.items()})
         return {

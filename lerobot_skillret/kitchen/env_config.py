@@ -1,7 +1,10 @@
 """LeRobot EnvConfig `panda_kitchen`: lets `lerobot-eval --env.type=panda_kitchen --env.task=<task>` run.
 
-Features are derived from `observations` (the one observation layout). Importing this module also registers
-the `gym_panda_kitchen/<task>` gym ids (string entry points), so importing it is all `lerobot-eval` needs.
+Features are derived from `observations` (the one observation layout). The envs are built by LeRobot 0.6's
+`EnvConfig.create_envs()` hook, so LeRobot's own `make_env_config("panda_kitchen", ...)` / `make_env(cfg)` path
+builds them; the env processors are LeRobot's default identity pipelines, because the kitchen already emits the
+`agent_pos` / `environment_state` / `pixels` layout LeRobot's `preprocess_observation` expects. Importing this module
+also registers the `gym_panda_kitchen/<task>` gym ids (string entry points), for `gym.make` users.
 Import-light: no robosuite here.
 """
 
@@ -9,12 +12,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import gymnasium as gym
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
 
 from lerobot_skillret.kitchen import observations as O
 from lerobot_skillret.kitchen.layout import CONTROL_FREQ
 from lerobot_skillret.kitchen.registration import register_envs
+from lerobot_skillret.kitchen.tasks import TASKS
 
 register_envs()
 
@@ -22,7 +27,7 @@ register_envs()
 @EnvConfig.register_subclass("panda_kitchen")
 @dataclass
 class PandaKitchenEnv(EnvConfig):
-    task: str | None = "breakfast"
+    task: str | None = "breakfast"  # one of the kitchen's tasks (`lerobot_skillret.kitchen.tasks.TASKS`)
     fps: int = CONTROL_FREQ
     episode_length: int | None = None  # None: the task's own max_steps
     cameras: tuple[str, ...] = ()
@@ -33,6 +38,14 @@ class PandaKitchenEnv(EnvConfig):
     features_map: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self):
+        if self.task not in TASKS:
+            raise ValueError(f"Unknown panda_kitchen task {self.task!r}. Pass --env.task=<one of {sorted(TASKS)}>.")
+        if self.episode_length is not None and self.episode_length < 1:
+            raise ValueError(
+                f"--env.episode_length must be >= 1 (or null for the task's own); got {self.episode_length}"
+            )
+        if self.render_stride < 1:
+            raise ValueError(f"--env.render_stride must be >= 1; got {self.render_stride}")
         self.cameras = O.check_cameras(self.cameras)
         self.features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(len(O.ACTION_NAMES),))}
         self.features_map = {"action": "action", **O.ENV_TO_DATASET}
@@ -46,8 +59,31 @@ class PandaKitchenEnv(EnvConfig):
     @property
     def gym_kwargs(self) -> dict:
         return {
+            "task": self.task,
             "cameras": tuple(self.cameras),
             "image_size": self.image_size,
             "episode_length": self.episode_length,
             "render_stride": self.render_stride,
         }
+
+    def create_envs(self, n_envs: int, use_async_envs: bool = False) -> dict[str, dict[int, gym.vector.VectorEnv]]:
+        """`{"panda_kitchen": {0: VectorEnv of n_envs kitchens}}`, LeRobot's single-task layout.
+
+        Async envs run each kitchen in its own process (forkserver, as LeRobot does); each builds its own MuJoCo
+        scene, so there is nothing to share."""
+        kwargs = self.gym_kwargs
+        factories = [lambda: make_kitchen_env(**kwargs) for _ in range(n_envs)]
+        if use_async_envs and n_envs > 1:
+            vector = gym.vector.AsyncVectorEnv(
+                factories, context="forkserver", autoreset_mode=gym.vector.AutoresetMode.SAME_STEP
+            )
+        else:
+            vector = gym.vector.SyncVectorEnv(factories, autoreset_mode=gym.vector.AutoresetMode.SAME_STEP)
+        return {self.type: {0: vector}}
+
+
+def make_kitchen_env(**kwargs: object) -> gym.Env:
+    """One kitchen env (imports robosuite/mujoco on first call, in whichever process builds it)."""
+    from lerobot_skillret.kitchen.gym_env import KitchenEnv
+
+    return KitchenEnv(**kwargs)

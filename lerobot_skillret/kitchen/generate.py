@@ -10,13 +10,19 @@ initial MuJoCo state (for exact replays), and the generator settings.
 from __future__ import annotations
 
 import argparse
+import ctypes
 import json
+import logging
 import multiprocessing as mp
+import multiprocessing.connection as mp_connection
 import os
 import shutil
+import signal
 import sys
-from collections.abc import Iterator
+import traceback
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from multiprocessing.connection import Connection
 from pathlib import Path
 
 from tqdm import tqdm
@@ -32,6 +38,8 @@ DEFAULT_PLAY_EPISODES = 150
 DEFAULT_PLAY_STEPS = 2000
 DEFAULT_DEMOS = 30
 MAX_ATTEMPTS_FACTOR = 3  # demos: give up after this many attempts per requested episode
+PREFETCH = 2  # jobs started per worker ahead of the next episode due: keeps workers busy, bounds waste
+PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 def _episode_seed(seed: int, index: int) -> int:
@@ -47,15 +55,97 @@ def _write_episode(dataset, episode: Episode, task_text: str) -> None:
     dataset.save_episode()
 
 
-@contextmanager
-def _episode_stream(jobs: list[EpisodeJob], workers: int) -> Iterator[Iterator[Episode]]:
-    """Episodes in job order, simulated by `workers` spawned processes (0: in this process, for tests)."""
-    if workers == 0:
-        yield map(run_episode, jobs)
+def _worker(conn: Connection, simulate: Callable[[EpisodeJob], Episode]) -> None:
+    """Worker process: simulate each `(position, job)` received, send back `(position, episode or error)`."""
+    if sys.platform.startswith("linux"):  # the kernel kills this worker when the generator dies, even by SIGKILL
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() == 1:  # the generator died before prctl took effect
         return
-    with mp.get_context("spawn").Pool(workers) as pool:
-        yield pool.imap(run_episode, jobs)
-        pool.terminate()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the generator's to handle
+    while True:
+        try:
+            position, job = conn.recv()
+        except EOFError:  # the generator closed the pipe: done
+            return
+        try:
+            conn.send((position, simulate(job), None))
+        except Exception:
+            conn.send((position, None, traceback.format_exc()))
+
+
+@contextmanager
+def _episode_stream(
+    jobs: list[EpisodeJob], workers: int, simulate: Callable[[EpisodeJob], Episode] | None = None
+) -> Iterator[Iterator[Episode]]:
+    """Episodes in job order, simulated by `workers` spawned processes (0: in this process, for tests).
+
+    Each worker owns one pipe and holds one job at a time; no more than `workers * PREFETCH` jobs are ever started
+    ahead of the next episode due, so early stops (demos stop at the requested number of successes, with most of
+    the `episodes * 3` attempts never needed) waste little. Leaving the block kills the workers. There is no shared
+    queue, lock or handler thread: `multiprocessing.Pool.terminate()` can deadlock when a worker is still writing a
+    large episode into the shared result queue, and a killed worker can leave that queue's lock held.
+    """
+    simulate = simulate or run_episode  # looked up now, so tests can patch the module's run_episode
+    if workers == 0:
+        yield map(simulate, jobs)
+        return
+    ctx = mp.get_context("spawn")
+    conns, procs = [], []
+    try:
+        for _ in range(min(workers, len(jobs))):
+            conn, child = ctx.Pipe()
+            proc = ctx.Process(target=_worker, args=(child, simulate), daemon=True)
+            proc.start()
+            child.close()
+            conns.append(conn)
+            procs.append(proc)
+        yield _ordered(jobs, conns)
+    finally:
+        for proc in procs:
+            proc.kill()
+        for proc in procs:
+            proc.join()
+        for conn in conns:
+            conn.close()
+
+
+def _ordered(jobs: list[EpisodeJob], conns: list[Connection]) -> Iterator[Episode]:
+    """Hand jobs to idle workers (at most `len(conns) * PREFETCH` ahead of the next due) and yield in job order."""
+    idle, done, next_job = list(conns), {}, 0
+    for due in range(len(jobs)):
+        while due not in done:
+            while idle and next_job < min(len(jobs), due + len(conns) * PREFETCH):
+                idle.pop().send((next_job, jobs[next_job]))
+                next_job += 1
+            for conn in mp_connection.wait([c for c in conns if c not in idle]):
+                try:
+                    position, episode, error = conn.recv()
+                except EOFError:
+                    raise RuntimeError("a simulation worker died (killed, or crashed in MuJoCo)") from None
+                if error is not None:
+                    raise RuntimeError(f"simulating episode {position} failed in a worker:\n{error}")
+                done[position] = episode
+                idle.append(conn)
+        yield done.pop(due)
+
+
+def _remove_stale_tmp(root: Path) -> None:
+    """Delete `.<root>.tmp-<pid>` folders of earlier runs whose process is gone (killed before its cleanup)."""
+    for tmp in root.parent.glob(f".{root.name}.tmp-*"):
+        pid = tmp.name.rsplit("-", 1)[-1]
+        if pid.isdigit() and not _alive(int(pid)):
+            logging.info("removing %s, left by a killed run", tmp)
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _jobs(args: argparse.Namespace) -> list[EpisodeJob]:
@@ -79,6 +169,7 @@ def generate(args: argparse.Namespace) -> Path:
     if root.exists() and not args.overwrite:
         raise FileExistsError(f"{root} already exists; pass --overwrite or choose another --root")
     root.parent.mkdir(parents=True, exist_ok=True)
+    _remove_stale_tmp(root)
     tmp = root.parent / f".{root.name}.tmp-{os.getpid()}"
     shutil.rmtree(tmp, ignore_errors=True)
     features = O.dataset_features(tuple(args.cameras), O.DEFAULT_IMAGE_SIZE)
@@ -204,6 +295,8 @@ def main(argv: list[str] | None = None) -> None:
         args.task = None
     if args.repo_id is None:
         args.repo_id = f"local/kitchen_{args.kind}" + (f"_{args.task}" if args.task else "")
+    # SIGTERM (a pipeline cancelling this stage, `kill`) unwinds like Ctrl-C: the temporary folder is removed.
+    signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(128 + signum))
     try:
         generate(args)
     except FileExistsError as e:

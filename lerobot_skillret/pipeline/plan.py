@@ -141,7 +141,7 @@ class Plan:
             f"--save_freq={spec.save_freq}",
             f"--num_workers={spec.num_workers}",
             f"--seed={seed}",
-            "--eval_freq=0",
+            "--env_eval_freq=0",
             "--wandb.enable=false",
             "--policy.push_to_hub=false",
             *([f"--config_path={Path(spec.config_path).resolve()}"] if spec.config_path else []),

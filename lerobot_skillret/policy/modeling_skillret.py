@@ -8,9 +8,10 @@ One forward computes the latent-policy loss on target windows (id 0) and on retr
 
 Inputs arrive RAW: the model normalises with statistics it owns as buffers (see `normalization.py`), so the
 processor's normaliser steps are identities and `--policy.path` cannot rescale the pre-trained decoder's actions.
-"""
 
-from __future__ import annotations
+No `from __future__ import annotations` here: LeRobot resolves the policy's config class from the runtime annotation
+of `__init__`'s `config` parameter, which must stay a class, not a string.
+"""
 
 from collections import deque
 from collections.abc import Mapping
@@ -155,7 +156,7 @@ class SkillRetPolicy(PreTrainedPolicy):
                 "skillret training batches need `index` (each window's global frame index, as LeRobotDataset "
                 "gives it): the temporal pair of every window is located from it."
             )
-        data = self._data()
+        data = self._data(batch["index"].reshape(-1))
         if self.config.fast_windows:  # LeRobot gave anchor frames only: gather their windows (same pads)
             batch = data.own.gather(batch["index"].reshape(-1), self._device())
         if self.config.stage == "skills":
@@ -163,14 +164,17 @@ class SkillRetPolicy(PreTrainedPolicy):
             return loss, {name: float(value) for name, value in terms.items()}
         return self._stage2_loss(batch, data)
 
-    def _data(self) -> TrainingData:
+    def _data(self, anchors: Tensor) -> "TrainingData":
+        """The extra window sources, built on the first training batch (whose `anchors` the data-parallel check
+        logs)."""
         from lerobot_skillret.policy.training_data import TrainingData
 
         if self._training_data is None:
             self._training_data = TrainingData.build(self)
+            self._training_data.check_ranks(anchors)
         return self._training_data
 
-    def _skill_loss(self, sources: list[tuple[Batch, WindowSource]]) -> tuple[Tensor, dict[str, Tensor], Tensor]:
+    def _skill_loss(self, sources: list[tuple[Batch, "WindowSource"]]) -> tuple[Tensor, dict[str, Tensor], Tensor]:
         """Algorithm 1's loss over the windows of several (raw batch, its WindowSource) pairs at once.
 
         Each source supplies the temporal pair of its own windows (same episode). Returns the loss, its detached
@@ -193,7 +197,7 @@ class SkillRetPolicy(PreTrainedPolicy):
         loss, terms, means = self.skills.loss(join(windows), join(pairs), torch.cat(offsets), join(slow))
         return loss, {name: value.detach() for name, value in terms.items()}, means
 
-    def _stage2_loss(self, batch: Batch, data: TrainingData) -> tuple[Tensor, dict[str, float]]:
+    def _stage2_loss(self, batch: Batch, data: "TrainingData") -> tuple[Tensor, dict[str, float]]:
         """L_policy on target (id 0) and retrieved (id 1) windows, + L_skill on target and prior windows."""
         config, device = self.config, self._device()
         size = batch[ACTION].shape[0]
@@ -343,15 +347,22 @@ class SkillRetPolicy(PreTrainedPolicy):
     # --- hub --------------------------------------------------------------------------------------------------
 
     def generate_model_card(
-        self, dataset_repo_id: str, model_type: str, license: str | None, tags: list[str] | None
+        self,
+        dataset_repo_id: str,
+        model_type: str,
+        license: str | None,
+        tags: list[str] | None,
+        **context: object,
     ) -> ModelCard:
-        """LeRobot's card, listing the prior dataset too and saying what the method is."""
+        """LeRobot's card (`context`: its train config and dataset metadata), listing the prior dataset too and
+        saying what the method is."""
         datasets = [dataset_repo_id, *([self.config.prior_repo_id] if self.config.prior_repo_id else [])]
         card = super().generate_model_card(
             datasets if len(datasets) > 1 else dataset_repo_id,
             model_type,
             license,
             list({*(tags or []), "skill-learning", "retrieval", "imitation-learning"}),
+            **context,
         )
         method = (
             "\n## Method: skill-based imitation with retrieval from prior data (skillret)\n\n"

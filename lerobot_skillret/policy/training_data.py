@@ -16,7 +16,7 @@ import torch
 from torch import Tensor
 
 from lerobot_skillret.data.fingerprint import checkpoint_fingerprint
-from lerobot_skillret.policy.window_source import WindowSource
+from lerobot_skillret.policy.window_source import WindowSource, data_parallel_rank
 from lerobot_skillret.retrieval.schema import RetrievalResult
 
 if TYPE_CHECKING:
@@ -32,8 +32,9 @@ class RetrievedWindows:
     latent: Tensor  # (K, latent_dim)
 
     def sample(self, size: int, device: torch.device) -> tuple[dict[str, Tensor], Tensor]:
-        """`size` retrieved windows drawn uniformly (with replacement) and their stored latents."""
-        pick = torch.randint(0, len(self.prior_index), (size,))
+        """`size` retrieved windows drawn uniformly (with replacement) and their stored latents; drawn with the
+        prior source's generator, so each data-parallel rank draws its own."""
+        pick = torch.randint(0, len(self.prior_index), (size,), generator=self.source.sampler.generator)
         return self.source.gather(self.prior_index[pick], device), self.latent[pick].to(device)
 
 
@@ -72,6 +73,37 @@ class TrainingData:
             prior = WindowSource(config.prior_repo_id, config.prior_root, *keys, history=config.history, **windows)
         retrieved = cls._retrieved(policy, own, prior) if config.use_retrieval else None
         return cls(own=own, prior=prior if config.finetune_skills else None, retrieved=retrieved)
+
+    def check_ranks(self, anchors: Tensor) -> None:
+        """Data-parallel runs: every rank must train on the same retrieved set and draw its own windows.
+
+        Gathers each rank's retrieved set, sampler seeds and first batch `anchors`, refuses a shared retrieved set
+        that differs or seeds that repeat, and logs them on the main process (the only one LeRobot lets log)."""
+        rank, world = data_parallel_rank()
+        if world == 1:
+            return
+        retrieved = None if self.retrieved is None else self.retrieved.prior_index
+        mine = {
+            "retrieved": None if retrieved is None else (len(retrieved), int(retrieved.sum())),
+            "seeds": [source.seed for source in (self.own, self.prior) if source is not None],
+            "anchors": anchors[:6].tolist(),
+        }
+        ranks: list[dict] = [{} for _ in range(world)]
+        torch.distributed.all_gather_object(ranks, mine)
+        if len({str(r["retrieved"]) for r in ranks}) > 1:
+            raise RuntimeError(
+                f"Data-parallel ranks read different retrieved sets ({[r['retrieved'] for r in ranks]}): every "
+                "rank must read the same --policy.retrieval_path and prior dataset (storage all ranks share)."
+            )
+        if len({tuple(r["seeds"]) for r in ranks}) < world:
+            raise RuntimeError(f"Data-parallel ranks share window seeds {[r['seeds'] for r in ranks]}.")
+        if rank == 0:
+            logging.info(
+                "skillret data-parallel: %d ranks, same retrieved set (%s windows); per rank: %s",
+                world,
+                mine["retrieved"][0] if mine["retrieved"] else 0,
+                "; ".join(f"rank {i}: seeds {r['seeds']}, first anchors {r['anchors']}" for i, r in enumerate(ranks)),
+            )
 
     @staticmethod
     def _retrieved(policy: SkillRetPolicy, own: WindowSource, prior: WindowSource | None) -> RetrievedWindows | None:

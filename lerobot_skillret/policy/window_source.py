@@ -7,6 +7,10 @@ fast column sampler of `lerobot_skillret.data.windows`; camera frames, which tha
 are decoded by its `FrameReader` (LeRobot's own decoders, each distinct frame once) for exactly the windows sampled.
 
 These objects are plain attributes of the policy, never modules: they stay out of the state_dict and checkpoints.
+
+Data-parallel training (`accelerate launch --multi_gpu ... lerobot-train`) seeds every rank identically; LeRobot's
+sharded dataloader then gives each rank different anchors, but the windows fetched here would repeat across ranks.
+Each source's seed is therefore offset by the process's rank.
 """
 
 from __future__ import annotations
@@ -35,10 +39,14 @@ class WindowSource:
         self.repo_id, self.root = repo_id, Path(root)
         self.columns = EpisodeColumns.from_dataset(repo_id, self.root)
         frames = FrameReader(repo_id, self.root, list(image_keys), video_backend) if image_keys else None
-        # Seeded from torch's global RNG, which lerobot-train seeds with `--seed`: pairs and prior windows repeat.
-        seed = int(torch.randint(0, 2**62, ()))
+        self.seed = window_seed()
         self.sampler = WindowSampler(
-            self.columns, history=history, horizon=horizon, keys=[*low_dim_keys, "action"], seed=seed, frames=frames
+            self.columns,
+            history=history,
+            horizon=horizon,
+            keys=[*low_dim_keys, "action"],
+            seed=self.seed,
+            frames=frames,
         )
 
     def __len__(self) -> int:
@@ -55,3 +63,17 @@ class WindowSource:
         """The windows at a uniform offset d in [-max_offset, max_offset] within each anchor's episode, and d."""
         anchors2, offset = self.sampler.sample_pair_anchors(anchors.cpu(), max_offset)
         return self.gather(anchors2, device), offset.to(device)
+
+
+def data_parallel_rank() -> tuple[int, int]:
+    """(rank, world size) of this process in torch.distributed's default group; (0, 1) when not distributed."""
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        return torch.distributed.get_rank(), torch.distributed.get_world_size()
+    return 0, 1
+
+
+def window_seed() -> int:
+    """A sampler seed from torch's global RNG (lerobot-train seeds it with `--seed`, so runs repeat), offset by the
+    data-parallel rank (every rank gets the same `--seed`, and must still draw its own windows)."""
+    rank, _ = data_parallel_rank()
+    return (int(torch.randint(0, 2**62, ())) + rank) % 2**63
