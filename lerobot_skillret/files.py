@@ -1,15 +1,19 @@
-"""Atomic file writes, shared by every stage that publishes a file.
+"""Atomic file and folder writes, shared by every stage that publishes something.
 
-A reader (or a later run after a kill) never sees a half-written file, and concurrent writers never share a
-temporary name: each write goes to its own temporary file beside the target, which is then renamed into place.
+A reader (or a later run after a kill) never sees a half-written file or folder, and concurrent writers never share
+a temporary name: each write goes to its own temporary file (or `.<name>.tmp-<pid>` folder) beside the target, which
+is then renamed into place. Folders left by a run killed before its cleanup (SIGKILL) are removed by the next one.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import os
+import shutil
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 
@@ -34,3 +38,35 @@ def write_text_atomic(path: str | Path, text: str) -> Path:
 
 def write_json_atomic(path: str | Path, payload: object) -> Path:
     return write_text_atomic(path, json.dumps(payload, indent=2, sort_keys=True))
+
+
+@contextmanager
+def staged_dir(final: str | Path) -> Iterator[Path]:
+    """Yield a fresh temporary folder path beside `final` (not created) that replaces `final` when the block
+    succeeds and is removed when it fails. Staging folders of earlier runs whose process is gone are removed first."""
+    final = Path(final)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    for stale in final.parent.glob(f".{final.name}.tmp-*"):
+        pid = stale.name.rsplit("-", 1)[-1]
+        if pid.isdigit() and not _alive(int(pid)):
+            logging.info("removing %s, left by a killed run", stale)
+            shutil.rmtree(stale, ignore_errors=True)
+    tmp = final.parent / f".{final.name}.tmp-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        yield tmp
+        if final.exists():
+            shutil.rmtree(final)
+        os.replace(tmp, final)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True

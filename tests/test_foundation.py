@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from importlib import metadata
 from pathlib import Path
 
 import pytest
@@ -24,10 +23,19 @@ def test_import_is_light() -> None:
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
-def test_distribution_is_discoverable_by_lerobot() -> None:
-    """LeRobot 0.4.4 auto-imports installed distributions named `lerobot_policy_*` (underscores)."""
-    dist = metadata.distribution("lerobot_policy_skillret")
-    assert dist.metadata["Name"] == "lerobot_policy_skillret"
+def test_lerobots_plugin_discovery_registers_both_types() -> None:
+    """LeRobot's own discovery (`register_third_party_plugins`, what every lerobot CLI runs first), in a clean
+    interpreter that never imports this package itself, registers `skillret` and `panda_kitchen`."""
+    code = (
+        "import sys; from lerobot.configs.policies import PreTrainedConfig; from lerobot.envs.configs import EnvConfig; "
+        "from lerobot.utils.import_utils import register_third_party_plugins; "
+        "assert 'skillret' not in PreTrainedConfig.get_known_choices(); "
+        "register_third_party_plugins(); "
+        "assert 'skillret' in PreTrainedConfig.get_known_choices(), 'policy type not registered'; "
+        "assert 'panda_kitchen' in EnvConfig.get_known_choices(), 'env type not registered'; "
+        "assert 'lerobot_policy_skillret' in sys.modules"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
 
 
 def test_stock_train_cli_lists_skillret_options() -> None:

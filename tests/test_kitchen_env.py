@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -125,3 +126,53 @@ def test_render_stride_reuses_frames_between_renders():
     assert env.render() is not first  # step 3: a fresh frame
     assert PandaKitchenEnv(render_stride=3).gym_kwargs["render_stride"] == 3
     env.close()
+
+
+def test_lerobots_make_env_path_builds_the_kitchen():
+    """LeRobot 0.6's own path: `make_env_config` + `make_env` go through `PandaKitchenEnv.create_envs`."""
+    from lerobot.envs.factory import make_env, make_env_config, make_env_pre_post_processors
+
+    cfg = make_env_config("panda_kitchen", task="cook", episode_length=5)
+    envs = make_env(cfg, n_envs=2)
+    vector = envs["panda_kitchen"][0]
+    try:
+        assert vector.num_envs == 2 and vector.call("task") == ("cook", "cook")
+        obs, _ = vector.reset(seed=3)
+        assert obs["agent_pos"].shape == (2, len(O.STATE_NAMES))
+        assert vector.call("_max_episode_steps") == (5, 5)
+    finally:
+        vector.close()
+    pre, post = make_env_pre_post_processors(cfg, policy_cfg=None)
+    assert len(pre.steps) == len(post.steps) == 0  # the kitchen emits LeRobot's observation layout already
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "message"),
+    [
+        ("task", "no_such_task", "Unknown panda_kitchen task 'no_such_task'. Pass --env.task=<one of"),
+        ("episode_length", 0, "--env.episode_length must be >= 1"),
+        ("render_stride", 0, "--env.render_stride must be >= 1"),
+    ],
+)
+def test_env_config_refuses_bad_values(field, value, message):
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace("[", r"\[")):
+        PandaKitchenEnv(**{field: value})
+
+
+@pytest.mark.slow
+def test_lerobot_eval_names_an_unknown_task():
+    """Before, LeRobot said "Package 'gym_panda_kitchen' not found. Please install it"."""
+    result = subprocess.run(
+        [
+            str(Path(sys.executable).parent / "lerobot-eval"),
+            "--env.type=panda_kitchen",
+            "--env.task=no_such_task",
+            "--policy.path=unused",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**os.environ, "HF_HUB_OFFLINE": "1"},
+    )
+    assert result.returncode != 0
+    assert "Unknown panda_kitchen task 'no_such_task'" in result.stderr and "not found" not in result.stderr

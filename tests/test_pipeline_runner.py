@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -136,6 +137,47 @@ def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
     path.write_text("skills: {config_path: configs/policy/cpu.jsn}\n")
     with pytest.raises(FileNotFoundError, match=r"`skills\.config_path` configs/policy/cpu\.jsn not found"):
         PipelineConfig.from_yaml(path)
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("skills.steps=abc", r"skills: `steps` must be of type int; got 'abc'"),
+        ("policy.steps=1.5", r"policy: `steps` must be of type int; got 1\.5"),
+        ("skills.steps=true", r"skills: `steps` must be of type int; got True"),
+        ("skills.batch_size=2.5", r"skills: `batch_size` must be of type int; got 2\.5"),
+        ("data.play_episodes=abc", r"data: `play_episodes` must be of type int"),
+        ("data.demo_episodes=-3", r"`data\.demo_episodes` must be >= 1 \(got -3\)"),
+        ("data.workers=abc", r"data: `workers` must be of type int"),
+        ("data.workers=-1", r"`data\.workers` must be >= 0"),
+        ("threads=abc", r"`threads` must be of type int \| None"),
+        ("threads=0", r"`threads` must be >= 1 or null"),
+        ("seeds=[abc]", r"`seeds` must be of type list\[int\]; got \['abc'\]"),
+        ("tasks=cook", r"`tasks` must be of type list\[str\]; got 'cook'"),
+        ("eval.n_episodes=ten", r"eval: `n_episodes` must be of type int"),
+        ("retrieval.args=5", r"retrieval: `args` must be of type dict"),
+    ],
+)
+def test_pipeline_cli_names_values_of_the_wrong_type(override: str, message: str) -> None:
+    """Each is refused before any stage runs, naming the key and the value (before: a raw TypeError, or accepted
+    and failing later inside a subprocess)."""
+    result = subprocess.run(
+        [
+            str(Path(sys.executable).parent / "skillret-pipeline"),
+            "run",
+            "--config",
+            "configs/pipeline/smoke.yaml",
+            override,
+            "output_dir=/nonexistent/never-written",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).resolve().parents[1],
+    )
+    assert result.returncode != 0
+    assert re.search(message, result.stderr), result.stderr[-2000:]
+    assert "Traceback" not in result.stderr
+    assert not Path("/nonexistent/never-written").exists()
 
 
 def test_plan_wires_each_ablation(tmp_path: Path) -> None:

@@ -493,3 +493,18 @@ def test_min_max_margin_keeps_the_data_range_inside_tanh():
     assert torch.allclose(norm.unnormalize("action", norm.normalize("action", extremes)), extremes)
     with pytest.raises(ValueError, match="min_max_margin"):
         tiny_config(min_max_margin=1.0)
+
+
+def test_each_dataset_id_conditions_its_own_windows(stage1_dir, prior_root, target_root, tmp_path):
+    """Target windows are labelled with the target id, retrieved windows with the retrieved id (guards retrieved
+    windows trained as if they were target data, which makes the id meaningless at rollout)."""
+    retrieval = write_retrieval(tmp_path / "ret.safetensors", stage1_dir, prior_root, target_root, [1, 9, 30, 77])
+    policy = stage2_policy(
+        stage1_dir, target_root, retrieval_path=str(retrieval), prior_repo_id=PRIOR_REPO, prior_root=str(prior_root)
+    )
+    batch = training_batch(policy.config, TARGET_REPO, target_root, size=5)
+    calls = []
+    original = policy.latent_policy.forward
+    policy.latent_policy.forward = lambda history, ids: calls.append(ids.tolist()) or original(history, ids)
+    policy.forward(batch)
+    assert calls == [[TARGET_ID] * 5, [RETRIEVED_ID] * 5]

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -207,3 +209,25 @@ def test_cli_options_map_onto_settings():
     assert (flags.importance, flags.exact, flags.num_prior, flags.nms_radius, flags.target_quota) == (
         True, False, 250_000, 5, 2
     )  # fmt: skip
+
+
+def test_a_kill_during_the_report_leaves_neither_report_nor_file(setup, tmp_path):
+    """SIGKILL after the first figure: no retrieval file, no report, no 0-byte figure; the re-run cleans the
+    killed run's staging folder and writes both."""
+    output, report = tmp_path / "ret.safetensors", tmp_path / "report"
+    args = cli_args(setup, output, "--report-dir", str(report))
+    killer = (
+        "import os, signal, sys; from lerobot_skillret.retrieval import report; from lerobot_skillret.retrieval.cli "
+        "import main; save = report._save_figure\n"
+        "def save_then_die(*a, **k):\n    save(*a, **k); os.kill(os.getpid(), signal.SIGKILL)\n"
+        f"report._save_figure = save_then_die; sys.exit(main({args!r}))"
+    )
+    killed = subprocess.run([sys.executable, "-c", killer], env={**os.environ, "HF_HUB_OFFLINE": "1"})
+    assert killed.returncode == -signal.SIGKILL
+    assert not output.exists() and not report.exists()
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".report.tmp-")]  # SIGKILL skips cleanup
+
+    assert main(args) == 0
+    assert output.is_file() and (report / "summary.json").is_file()
+    leftovers = [p.name for p in tmp_path.rglob("*") if p.name.startswith(".") or p.stat().st_size == 0]
+    assert leftovers == []

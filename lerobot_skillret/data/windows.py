@@ -301,6 +301,25 @@ class FrameReader:
         }
 
 
+def _warn_short_episodes(columns: EpisodeColumns, horizon: int) -> None:
+    """Episodes shorter than a window are kept, padded past their end (as LeRobot pads, and the seed does): say
+    so, since every window of such an episode is partly padding."""
+    start = _numpy_view(columns.td["episode_start"])
+    lengths = _numpy_view(columns.td["episode_end"])[np.unique(start)] - np.unique(start)
+    short = int((lengths < horizon).sum())
+    if short:
+        log.warning(
+            "%d of %d episodes of %s are shorter than the window (H=%d; shortest %d frames): their windows are "
+            "padded past the episode's end, and the padded steps are masked out of the losses and of retrieval. "
+            "Record longer episodes or lower --policy.horizon if that is not intended.",
+            short,
+            len(lengths),
+            columns.repo_id,
+            horizon,
+            int(lengths.min()),
+        )
+
+
 def _numpy_view(tensor: torch.Tensor) -> np.ndarray:
     """A NumPy view of a (memory-mapped) tensor's storage."""
     return tensor.as_subclass(torch.Tensor).numpy()
@@ -343,6 +362,7 @@ class WindowSampler:
             )
         self.columns, self.frames = columns, frames
         self.history, self.horizon, self.keys = history, horizon, list(keys)
+        _warn_short_episodes(columns, horizon)
         # NumPy views of the memory-mapped columns (same pages, no copy): see `gather` for why NumPy.
         self._data = {k: _numpy_view(columns.td[k]) for k in (*self.keys, *BOUND_KEYS, "episode_index")}
         self._obs_offsets = np.arange(-(history - 1), horizon)

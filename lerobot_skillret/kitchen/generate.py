@@ -12,11 +12,9 @@ from __future__ import annotations
 import argparse
 import ctypes
 import json
-import logging
 import multiprocessing as mp
 import multiprocessing.connection as mp_connection
 import os
-import shutil
 import signal
 import sys
 import traceback
@@ -27,6 +25,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from lerobot_skillret.files import staged_dir
 from lerobot_skillret.kitchen import observations as O
 from lerobot_skillret.kitchen.collect import Episode, EpisodeJob, run_episode
 from lerobot_skillret.kitchen.layout import CONTROL_FREQ
@@ -129,25 +128,6 @@ def _ordered(jobs: list[EpisodeJob], conns: list[Connection]) -> Iterator[Episod
         yield done.pop(due)
 
 
-def _remove_stale_tmp(root: Path) -> None:
-    """Delete `.<root>.tmp-<pid>` folders of earlier runs whose process is gone (killed before its cleanup)."""
-    for tmp in root.parent.glob(f".{root.name}.tmp-*"):
-        pid = tmp.name.rsplit("-", 1)[-1]
-        if pid.isdigit() and not _alive(int(pid)):
-            logging.info("removing %s, left by a killed run", tmp)
-            shutil.rmtree(tmp, ignore_errors=True)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 def _jobs(args: argparse.Namespace) -> list[EpisodeJob]:
     cams = tuple(args.cameras)
     if args.kind == "play":
@@ -169,13 +149,10 @@ def generate(args: argparse.Namespace) -> Path:
     if root.exists() and not args.overwrite:
         raise FileExistsError(f"{root} already exists; pass --overwrite or choose another --root")
     root.parent.mkdir(parents=True, exist_ok=True)
-    _remove_stale_tmp(root)
-    tmp = root.parent / f".{root.name}.tmp-{os.getpid()}"
-    shutil.rmtree(tmp, ignore_errors=True)
     features = O.dataset_features(tuple(args.cameras), O.DEFAULT_IMAGE_SIZE)
     jobs = _jobs(args)
     episodes_meta, attempts, failures = [], 0, 0
-    try:
+    with staged_dir(root) as tmp:  # an interrupted run leaves no dataset behind
         dataset = LeRobotDataset.create(
             args.repo_id,
             fps=CONTROL_FREQ,
@@ -225,11 +202,6 @@ def generate(args: argparse.Namespace) -> Path:
             "episodes": episodes_meta,
         }
         (tmp / O.KITCHEN_META).write_text(json.dumps(meta))
-        if root.exists():
-            shutil.rmtree(root)
-        os.replace(tmp, root)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     if args.kind == "demos":
         print(f"{args.task}: kept {len(episodes_meta)} successful demos of {attempts} attempts ({failures} failed)")
     print(f"wrote {root}")

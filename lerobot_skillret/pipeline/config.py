@@ -6,6 +6,8 @@ Every training stage is a stock `lerobot-train` run; its options are written exa
 
 from __future__ import annotations
 
+import types
+import typing
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -111,6 +113,13 @@ class PipelineConfig:
             )
         if not isinstance(self.jobs, int) or isinstance(self.jobs, bool) or self.jobs < 1:
             raise ValueError(f"pipeline config: `jobs` must be >= 1 (got {self.jobs}); use the number of cores.")
+        if self.threads is not None and self.threads < 1:
+            raise ValueError(f"pipeline config: `threads` must be >= 1 or null (got {self.threads}).")
+        for name in ("play_episodes", "play_steps", "demo_episodes"):
+            if getattr(self.data, name) < 1:
+                raise ValueError(f"pipeline config: `data.{name}` must be >= 1 (got {getattr(self.data, name)}).")
+        if self.data.workers < 0:
+            raise ValueError(f"pipeline config: `data.workers` must be >= 0 (got {self.data.workers}; 0: in-process).")
         if not self.tasks or not self.seeds:
             raise ValueError("pipeline config: `tasks` and `seeds` must each name at least one entry.")
         counts = {f"eval.{name}": getattr(self.eval, name) for name in ("n_episodes", "batch_size", "max_checkpoints")}
@@ -181,7 +190,39 @@ def _build(cls: type, raw: dict[str, Any], where: str) -> Any:
         if kind is not None:
             kwargs[name] = _build(kind, value or {}, f"{where}:{name}")
         elif cls is PipelineConfig and name == "baselines":
+            if not isinstance(value or {}, dict):
+                raise ValueError(f"{where}: `baselines` must map names to lerobot-train sections; got {value!r}.")
             kwargs[name] = {k: _build(TrainSpec, v or {}, f"{where}:baselines.{k}") for k, v in (value or {}).items()}
         else:
-            kwargs[name] = value
+            kwargs[name] = _checked(value, typing.get_type_hints(cls)[name], f"{where}: `{name}`")
     return cls(**kwargs)
+
+
+def _checked(value: Any, annotation: Any, what: str) -> Any:
+    """`value` if it has the field's declared type (bools are not ints, ints are floats), else a clear error."""
+    if _matches(value, annotation):
+        return value
+    expected = str(annotation).replace("typing.", "") if typing.get_args(annotation) else annotation.__name__
+    raise ValueError(
+        f"{what} must be of type {expected}; got {value!r} ({type(value).__name__}). Correct it in the config file "
+        "or the command-line override."
+    )
+
+
+def _matches(value: Any, annotation: Any) -> bool:
+    if annotation is Any:
+        return True
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if origin in (types.UnionType, typing.Union):
+        return any(_matches(value, arg) for arg in args)
+    if annotation is type(None):
+        return value is None
+    if origin is list:
+        return isinstance(value, list) and all(_matches(v, args[0]) for v in value)
+    if origin is dict:
+        return isinstance(value, dict)
+    if annotation is float:
+        return isinstance(value, int | float) and not isinstance(value, bool)
+    if annotation is int:
+        return isinstance(value, int) and not isinstance(value, bool)
+    return isinstance(value, annotation)

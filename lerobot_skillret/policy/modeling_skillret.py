@@ -13,6 +13,7 @@ No `from __future__ import annotations` here: LeRobot resolves the policy's conf
 of `__init__`'s `config` parameter, which must stay a class, not a string.
 """
 
+import json
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
@@ -24,6 +25,7 @@ from huggingface_hub import ModelCard
 from lerobot.configs.types import FeatureType
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION
+from safetensors import SafetensorError
 from torch import Tensor
 
 from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
@@ -344,6 +346,23 @@ class SkillRetPolicy(PreTrainedPolicy):
         actions, _ = self.skills.decoder(skill, repeated)
         return self.normalizer.unnormalize(ACTION, actions)
 
+    # --- checkpoints ------------------------------------------------------------------------------------------
+
+    @classmethod
+    def _load_as_safetensor(
+        cls, model: "SkillRetPolicy", model_file: str, map_location: str, strict: bool
+    ) -> "SkillRetPolicy":
+        """LeRobot's loader, with errors that name the file and the fix instead of a raw size mismatch or
+        `SafetensorError` (a stage-2 dataset with another layout than the checkpoint's; a truncated file)."""
+        _check_checkpoint_features(model.config, Path(model_file).parent)
+        try:
+            return super()._load_as_safetensor(model, model_file, map_location, strict)
+        except SafetensorError as error:
+            raise ValueError(
+                f"Cannot read the weights {model_file}: {error}. The file is truncated or corrupt (a copy or a run "
+                "killed while saving); use another checkpoint (checkpoints/<step>/pretrained_model) or re-train."
+            ) from error
+
     # --- hub --------------------------------------------------------------------------------------------------
 
     def generate_model_card(
@@ -377,3 +396,27 @@ class SkillRetPolicy(PreTrainedPolicy):
             f"`{self.config.retrieval_path or 'none'}` (retrieval {'on' if self.config.use_retrieval else 'off'}).\n"
         )
         return ModelCard(card.content + method)
+
+
+def _check_checkpoint_features(config: SkillRetConfig, folder: Path) -> None:
+    """Refuse to load weights trained on another observation/action layout than `config` describes (stage 2 on a
+    target dataset whose features differ from the prior's), naming the differing features."""
+    saved = folder / "config.json"
+    if not saved.is_file():
+        return
+    stored = json.loads(saved.read_text())
+    before = {
+        key: tuple(ft["shape"])
+        for key, ft in {**stored.get("input_features", {}), **stored.get("output_features", {})}.items()
+    }
+    now = {key: tuple(ft.shape) for key, ft in {**config.input_features, **config.output_features}.items()}
+    differ = sorted(key for key in before.keys() | now.keys() if before.get(key) != now.get(key))
+    if differ:
+        rows = "; ".join(
+            f"{key}: checkpoint {before.get(key, 'absent')} vs now {now.get(key, 'absent')}" for key in differ
+        )
+        raise ValueError(
+            f"The checkpoint {folder} was trained on other features than this run's dataset ({rows}). Stage 2 "
+            "needs a target dataset with the prior's observation and action layout (same robot, keys and sizes): "
+            "record the target like the prior, or pre-train the skills on a prior with the target's layout."
+        )

@@ -21,6 +21,7 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
+from lerobot_skillret.files import staged_dir
 from lerobot_skillret.kitchen.observations import KITCHEN_META, PRIMITIVE_KEY, load_kitchen_meta
 from lerobot_skillret.retrieval.engine import (
     STREAM_CANDIDATES,
@@ -261,11 +262,14 @@ def _labels(columns: EpisodeColumns, anchors: Tensor) -> Tensor | None:
 def _finish(
     result: RetrievalResult, output: str | Path | None, report_dir: str | Path | None, inputs: ReportInputs | None
 ) -> RetrievalResult:
+    """Write the report (staged in a temporary folder, moved into place whole), then the retrieval file (atomic):
+    a kill at any point leaves no partial report, and never a retrieval file without its report."""
+    if report_dir is not None:
+        with staged_dir(report_dir) as staging:
+            write_report(staging, result, inputs)
     if output is not None:
         result.save(output)
         log.info("wrote %d retrieved windows to %s", len(result), output)
-    if report_dir is not None:
-        write_report(report_dir, result, inputs)
     return result
 
 
