@@ -78,11 +78,11 @@ MUTANTS = [
         ("tests/test_policy_method_pins.py", "tests/test_pipeline_runner.py"),
     ),
     Mutant(
-        "kl_sign",
-        "KL's log-variance term with the wrong sign",
+        "kl_order",
+        "KL(p || q) computed instead of KL(q || p)",
         PKG / "policy/skills.py",
-        "- 1.0 - (log_var_q - log_var_p)",
-        "- 1.0 + (log_var_q - log_var_p)",
+        "return kl_divergence(q, p).sum(dim=-1)",
+        "return kl_divergence(p, q).sum(dim=-1)",
         tuple(POLICY_TESTS),
     ),
     Mutant(

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -89,3 +94,39 @@ def test_sampling_is_seeded_and_keeps_clearance(name):
     parked = [n for n in layout.MOVABLES if n not in task.init]
     x0, x1, y0, y1 = layout.WORK_AREA
     assert all(not (x0 < poses_a[n][0] < x1 and y0 < poses_a[n][1] < y1) for n in parked)
+
+
+def test_the_ladder_has_every_level():
+    levels = {task.level for task in TASKS.values()}
+    assert {1, 2, 3} <= levels
+    assert all(get_task(name).level == 1 for name in ("bread_on_plate", "pan_on_stove", "light_on"))
+
+
+def test_tasks_from_an_installed_entry_point_reach_every_command(tmp_path):
+    """A task declared by another distribution (the examples/custom_task package, as if pip-installed) is in the
+    registry, the gym ids, the EnvConfig, the pipeline config and skillret-generate's choices, in a fresh process."""
+    example = Path(__file__).resolve().parents[1] / "examples" / "custom_task" / "my_kitchen_tasks.py"
+    (tmp_path / "my_kitchen_tasks.py").write_text(example.read_text())
+    dist = tmp_path / "my_kitchen_tasks-0.1.0.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: my-kitchen-tasks\nVersion: 0.1.0\n")
+    (dist / "entry_points.txt").write_text("[lerobot_skillret.tasks]\nmilk = my_kitchen_tasks:tasks\n")
+    code = (
+        "import gymnasium as gym; import lerobot_skillret\n"
+        "from lerobot_skillret.kitchen.tasks import TASKS\n"
+        "from lerobot_skillret.kitchen.env_config import PandaKitchenEnv\n"
+        "from lerobot_skillret.pipeline.config import PipelineConfig\n"
+        "assert TASKS['milk_right_of_plate'].level == 1\n"
+        "assert 'gym_panda_kitchen/milk_right_of_plate' in gym.registry\n"
+        "PandaKitchenEnv(task='milk_right_of_plate'); PipelineConfig(tasks=['milk_right_of_plate'])\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(tmp_path)}
+    subprocess.run([sys.executable, "-c", code], check=True, env=env)
+    generate_help = subprocess.run(
+        [str(Path(sys.executable).parent / "skillret-generate"), "demos", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+        env=env,
+    ).stdout
+    assert "milk_right_of_plate" in generate_help

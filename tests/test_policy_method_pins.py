@@ -10,7 +10,6 @@ import torch
 from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from policy_fixtures import PRIOR_REPO, TARGET_REPO, build_policy, tiny_config, training_batch
 from synthetic import make_synthetic_dataset
-from torch.distributions import Normal, kl_divergence
 
 from lerobot_skillret.data.windows import EpisodeColumns
 from lerobot_skillret.pipeline.heldout import skill_starts
@@ -35,12 +34,14 @@ def _observation(batch: dict, policy: SkillRetPolicy, step: int) -> dict:
     return {key: batch[key][:, step] for key in policy.observation_keys}
 
 
-def test_gaussian_kl_equals_torch_distributions():
-    """Reference: torch.distributions' closed-form KL of diagonal Gaussians (guards a sign or variance slip)."""
+def test_gaussian_kl_equals_the_closed_form():
+    """Reference: the textbook KL of diagonal Gaussians, written out (guards swapped arguments, a sign or a
+    variance-for-std slip)."""
     generator = torch.Generator().manual_seed(0)
     mean_q, mean_p = torch.randn(5, 8, generator=generator), torch.randn(5, 8, generator=generator)
     log_var_q, log_var_p = torch.randn(5, 8, generator=generator), torch.randn(5, 8, generator=generator)
-    reference = kl_divergence(Normal(mean_q, (0.5 * log_var_q).exp()), Normal(mean_p, (0.5 * log_var_p).exp())).sum(-1)
+    var_q, var_p = log_var_q.exp(), log_var_p.exp()
+    reference = 0.5 * (log_var_p - log_var_q + (var_q + (mean_q - mean_p) ** 2) / var_p - 1).sum(-1)
     torch.testing.assert_close(gaussian_kl(mean_q, log_var_q, mean_p, log_var_p), reference)
 
 

@@ -12,7 +12,7 @@ from lerobot_skillret.kitchen import layout
 from lerobot_skillret.kitchen import predicates as P
 from lerobot_skillret.kitchen.primitives import Driver, OutOfSteps, run_primitive
 from lerobot_skillret.kitchen.sampling import PlacementError
-from lerobot_skillret.kitchen.tasks import TASKS, Step
+from lerobot_skillret.kitchen.tasks import MULTI_STEP, Step
 
 ITEM_REGIONS = {
     **{f: ("plate", "placemat_left", "placemat_right", "pan", "pot", "table") for f in layout.FOODS},
@@ -52,9 +52,10 @@ def feasible_steps(scene) -> list[Step]:
 
 
 def play_scene_task(rng: np.random.Generator):
-    """The task whose initial-state distribution a play episode starts from."""
-    names = sorted(TASKS)
-    return TASKS[names[rng.integers(len(names))]]
+    """The task whose initial-state distribution a play episode starts from: one of the seed's multi-step tasks,
+    whose scenes hold every object and fixture state (tasks added later do not change the play data)."""
+    scenes = sorted(MULTI_STEP, key=lambda task: task.name)  # by name: the order play data was generated with
+    return scenes[rng.integers(len(scenes))]
 
 
 def run_play(driver: Driver, rng: np.random.Generator) -> list[tuple[Step, bool]]:

@@ -1,12 +1,21 @@
 """Kitchen tasks as data: goal predicates, initial-state distribution, rollout length and a scripted plan.
 
-One registry (`TASKS`) is used by the gym env, the generators, the experts and the EnvConfig. Adding a task is one
-`Task(...)` entry. Import-light: no simulator here.
+One registry (`TASKS`) is used by the gym env, the generators, the experts, the EnvConfig and the pipeline.
+The built-in tasks form a ladder: single-step tasks (one per sub-skill the long tasks use), two-step tasks, and the
+seed's multi-step tasks (B.2/B.3). A task's level is the number of steps of its plan.
+
+Tasks of your own need no edit here: an installed distribution that declares an entry point in the group
+`lerobot_skillret.tasks` (its value: a `Task`, or a function returning an iterable of them) adds its tasks to
+`TASKS` in every process, so `skillret-generate`, the gym ids, `lerobot-eval --env.task` and the pipeline all accept
+them (see `examples/custom_task/`). Import-light: no simulator here.
 """
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Iterable
 from dataclasses import dataclass, field
+from importlib.metadata import entry_points
 
 from lerobot_skillret.kitchen import layout
 from lerobot_skillret.kitchen import predicates as P
@@ -50,12 +59,87 @@ class Task:
     def unmet(self, scene: P.SceneState) -> list[str]:
         return [goal.name for goal in self.goals if not goal(scene)]
 
+    @property
+    def level(self) -> int:
+        """Rung of the task ladder: the number of sub-skills (primitive calls) the task chains."""
+        return len(self.plan)
+
 
 TABLE = ("front_left", "center")
 B1, B2, B3 = layout.BLOCKS
 
-TASKS: dict[str, Task] = {
-    t.name: t
+LADDER: tuple[Task, ...] = (
+    # --- level 1: one sub-skill each, the building blocks of the long tasks
+    Task(
+        name="bread_on_plate",
+        description="Put the bread on the plate.",
+        goals=(P.on_plate("bread"),),
+        init={"bread": TABLE},
+        max_steps=250,
+        plan=(Step("pick_place", ("bread", "plate")),),
+    ),
+    Task(
+        name="pan_on_stove",
+        description="Move the pan by its handle from the table onto the stove.",
+        goals=(P.vessel_on_stove("pan"),),
+        init={"pan": ("pan_table",)},
+        max_steps=300,
+        plan=(Step("move_vessel", ("pan", "stove")),),
+    ),
+    Task(
+        name="fish_in_pan",
+        description="Put the fish into the pan on the stove.",
+        goals=(P.in_vessel("fish", "pan"),),
+        init={"pan": ("stove",), "fish": TABLE},
+        max_steps=250,
+        plan=(Step("pick_place", ("fish", "pan")),),
+    ),
+    Task(
+        name="light_on",
+        description="Switch the light on.",
+        goals=(P.switch_on("light"),),
+        init={},
+        max_steps=200,
+        plan=(Step("toggle", ("light", "on")),),
+    ),
+    Task(
+        name="open_drawer",
+        description="Open the drawer.",
+        goals=(P.drawer_open(),),
+        init={},
+        max_steps=200,
+        plan=(Step("open_drawer"),),
+    ),
+    # --- level 2: two sub-skills in a row
+    Task(
+        name="bread_and_butter",
+        description="Put the bread on the plate and the butter left of the plate.",
+        goals=(P.on_plate("bread"), P.on_placemat_side("butter", "left")),
+        init={"bread": TABLE, "butter": TABLE},
+        max_steps=450,
+        plan=(Step("pick_place", ("bread", "plate")), Step("pick_place", ("butter", "placemat_left"))),
+    ),
+    Task(
+        name="pan_and_fish",
+        description="Move the pan onto the stove, then put the fish into it.",
+        goals=(P.vessel_on_stove("pan"), P.in_vessel("fish", "pan")),
+        init={"pan": ("pan_table",), "fish": ("center",)},
+        max_steps=500,
+        plan=(Step("move_vessel", ("pan", "stove")), Step("pick_place", ("fish", "pan"))),
+    ),
+    Task(
+        name="fish_and_burner",
+        description="Put the fish into the pan on the stove and turn the burner on.",
+        goals=(P.in_vessel("fish", "pan"), P.switch_on("burner")),
+        init={"pan": ("stove",), "fish": TABLE},
+        max_steps=400,
+        plan=(Step("pick_place", ("fish", "pan")), Step("toggle", ("burner", "on"))),
+    ),
+)
+
+# The seed's multi-step tasks (B.2/B.3). Play episodes start from their scenes (see `play.play_scene_task`).
+MULTI_STEP: tuple[Task, ...] = tuple(
+    t
     for t in (
         Task(
             name="breakfast",
@@ -130,7 +214,37 @@ TASKS: dict[str, Task] = {
             ),
         ),
     )
-}
+)
+
+
+def _plugin_tasks() -> list[Task]:
+    """Tasks declared by installed distributions in the entry-point group `lerobot_skillret.tasks`."""
+    found: list[Task] = []
+    for entry in entry_points(group=ENTRY_POINT_GROUP):
+        loaded = entry.load()
+        tasks = loaded() if callable(loaded) and not isinstance(loaded, Task) else loaded
+        tasks = [tasks] if isinstance(tasks, Task) else list(tasks)
+        bad = [t for t in tasks if not isinstance(t, Task)]
+        if bad:
+            raise TypeError(
+                f"Entry point {entry.name} = {entry.value} ({ENTRY_POINT_GROUP}) must give Task objects; got {bad!r}."
+            )
+        found += tasks
+        logging.getLogger(__name__).debug("kitchen tasks from %s: %s", entry.value, [t.name for t in tasks])
+    return found
+
+
+def _registry(tasks: Iterable[Task]) -> dict[str, Task]:
+    registry: dict[str, Task] = {}
+    for task in tasks:
+        if task.name in registry:
+            raise ValueError(f"Two kitchen tasks are named {task.name!r}: rename one (task names are gym ids).")
+        registry[task.name] = task
+    return registry
+
+
+ENTRY_POINT_GROUP = "lerobot_skillret.tasks"
+TASKS: dict[str, Task] = _registry([*LADDER, *MULTI_STEP, *_plugin_tasks()])
 
 
 def get_task(name: str) -> Task:

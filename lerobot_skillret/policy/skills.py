@@ -15,6 +15,7 @@ from collections.abc import Mapping, Sequence
 
 import torch
 from torch import Tensor, nn
+from torch.distributions import Normal, kl_divergence
 
 from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
 from lerobot_skillret.policy.networks import CellState, ObservationEncoder, lstm_steps, mlp, mlp_out_dim
@@ -31,9 +32,9 @@ def last_valid(values: Tensor, valid: Tensor) -> Tensor:
 
 def gaussian_kl(mean_q: Tensor, log_var_q: Tensor, mean_p: Tensor, log_var_p: Tensor) -> Tensor:
     """KL(N(mean_q, var_q) || N(mean_p, var_p)) of diagonal Gaussians, summed over the latent: (B,)."""
-    var_ratio = torch.exp(log_var_q - log_var_p)
-    mahalanobis = (mean_q - mean_p).pow(2) * torch.exp(-log_var_p)
-    return 0.5 * (var_ratio + mahalanobis - 1.0 - (log_var_q - log_var_p)).sum(dim=-1)
+    q = Normal(mean_q, torch.exp(0.5 * log_var_q))
+    p = Normal(mean_p, torch.exp(0.5 * log_var_p))
+    return kl_divergence(q, p).sum(dim=-1)
 
 
 def make_observation_encoder(

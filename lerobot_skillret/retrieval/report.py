@@ -19,6 +19,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -95,15 +96,11 @@ def summarize(result: RetrievalResult, inputs: ReportInputs | None) -> dict[str,
 
 
 def _quantiles(values: Tensor) -> dict[str, float]:
-    """Exact quantiles (linear interpolation, as `torch.quantile`) of any number of values: torch.quantile itself
-    refuses inputs over 2^24 elements, which a large prior exceeds."""
+    """Exact quantiles (linear interpolation) of any number of values, by NumPy: `torch.quantile` refuses inputs
+    over 2^24 elements, which a large prior exceeds."""
     if values.numel() == 0:
         return {}
-    ordered = values.double().flatten().sort().values
-    position = torch.tensor(QUANTILES, dtype=torch.float64) * (ordered.numel() - 1)
-    low = position.floor().long()
-    high = position.ceil().long()
-    q = ordered[low] + (ordered[high] - ordered[low]) * (position - low)
+    q = np.quantile(values.double().flatten().numpy(), QUANTILES)
     return {f"{level:g}": float(v) for level, v in zip(QUANTILES, q, strict=True)}
 
 

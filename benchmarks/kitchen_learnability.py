@@ -1,0 +1,231 @@
+"""Is each kitchen task learnable from 30 demonstrations? A converged behaviour-cloning reference says.
+
+A comparison of methods means something only on tasks where imitation is measurable: neither solved by everything
+nor by nothing. Per task this script
+1. generates the target demonstrations (`skillret-generate demos`, skipped when they exist),
+2. reports their statistics (episode lengths, saturated position actions, the gripper label set),
+3. trains a plain BC reference to a plateau: an MLP (3 x 512, LayerNorm, GELU) from the current observation
+   (state + environment state, mean/std-normalised) to a chunk of 8 future actions, MSE, AdamW with cosine decay,
+   stopped when the epoch loss has not improved by 2 % over the last 100 epochs (or at --max-epochs),
+4. rolls it out from held-out initial states (env seeds from 100,000 up, which no generated dataset uses),
+   executing 4 actions of each chunk, and reports success and subtask progress.
+
+It is a calibration tool for the benchmark, not one of the compared methods (those are LeRobot's policies and
+skillret, run by `skillret-pipeline`). Results land in `benchmarks/results/learnability/<task>.json` with the loss
+curve, one task at a time: a killed run keeps the finished tasks, and a re-run skips them (--force redoes them).
+
+    MUJOCO_GL=egl python benchmarks/kitchen_learnability.py --tasks bread_on_plate pan_on_stove
+    python benchmarks/kitchen_learnability.py --table     # the markdown table of every stored result
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from lerobot_skillret.data.windows import EpisodeColumns
+from lerobot_skillret.files import write_json_atomic, write_text_atomic
+from lerobot_skillret.kitchen.observations import load_kitchen_meta
+from lerobot_skillret.kitchen.tasks import TASKS
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results" / "learnability"
+OBS_KEYS = ("observation.state", "observation.environment_state")
+CHUNK, EXECUTE = 8, 4
+EVAL_SEED0 = 100_000  # held-out initial states: generated datasets use seeds seed * 1_000_003 + i, i < 3 * episodes
+PLATEAU_EPOCHS, PLATEAU_GAIN = 100, 0.02
+
+
+def demo_statistics(columns: EpisodeColumns, root: Path) -> dict:
+    meta = load_kitchen_meta(root)  # the generator kept the successful attempts: the expert's success rate
+    start = columns.td["episode_start"].as_subclass(torch.Tensor).numpy()
+    firsts = np.unique(start)
+    lengths = columns.td["episode_end"].as_subclass(torch.Tensor).numpy()[firsts] - firsts
+    action = columns.td["action"].as_subclass(torch.Tensor).numpy()
+    saturated = (np.abs(action[:, :3]) >= 0.999).mean(axis=0)
+    return {
+        "expert_success": f"{len(firsts)}/{meta['attempts']}",
+        "episodes": len(firsts),
+        "frames": len(columns),
+        "length_min_median_max": [int(lengths.min()), int(np.median(lengths)), int(lengths.max())],
+        "saturated_position_share_xyz": [round(float(x), 3) for x in saturated],
+        "gripper_labels": sorted({round(float(g), 2) for g in np.unique(action[:, -1])})[:10],
+    }
+
+
+def chunk_dataset(columns: EpisodeColumns) -> tuple[torch.Tensor, torch.Tensor]:
+    """(observations (N, D), action chunks (N, CHUNK, A)); steps past an episode's end repeat its last action."""
+    td = columns.td
+    obs = torch.cat([td[k].as_subclass(torch.Tensor).float() for k in OBS_KEYS], dim=-1)
+    action = td["action"].as_subclass(torch.Tensor).float()
+    end = td["episode_end"].as_subclass(torch.Tensor)
+    index = torch.arange(len(columns))[:, None] + torch.arange(CHUNK)[None, :]
+    return obs, action[torch.minimum(index, end[:, None] - 1)]
+
+
+class BC(nn.Module):
+    def __init__(self, obs_dim: int, action_dim: int, width: int = 512) -> None:
+        super().__init__()
+        layers: list[nn.Module] = []
+        for i in range(3):
+            layers += [nn.Linear(obs_dim if i == 0 else width, width), nn.LayerNorm(width), nn.GELU()]
+        self.net = nn.Sequential(*layers, nn.Linear(width, CHUNK * action_dim))
+        self.action_dim = action_dim
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.net(obs).view(-1, CHUNK, self.action_dim)
+
+
+def train(obs: torch.Tensor, chunks: torch.Tensor, max_epochs: int, batch: int, seed: int) -> tuple[BC, dict]:
+    torch.manual_seed(seed)
+    stats = {
+        "obs_mean": obs.mean(0),
+        "obs_std": obs.std(0).clamp_min(1e-3),
+        "act_mean": chunks.mean((0, 1)),
+        "act_std": chunks.std((0, 1)).clamp_min(1e-3),
+    }
+    x = (obs - stats["obs_mean"]) / stats["obs_std"]
+    y = (chunks - stats["act_mean"]) / stats["act_std"]
+    model = BC(obs.shape[1], chunks.shape[2])
+    steps_per_epoch = math.ceil(len(x) / batch)
+    optimizer = torch.optim.AdamW(model.parameters(), lr=1e-3, weight_decay=1e-4)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, max_epochs * steps_per_epoch)
+    curve: list[float] = []
+    start = time.monotonic()
+    for epoch in range(max_epochs):
+        order, total = torch.randperm(len(x)), 0.0
+        for i in range(steps_per_epoch):
+            pick = order[i * batch : (i + 1) * batch]
+            loss = (model(x[pick]) - y[pick]).pow(2).mean()
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+            schedule.step()
+            total += float(loss.detach()) * len(pick)
+        curve.append(total / len(x))
+        if epoch >= 2 * PLATEAU_EPOCHS:
+            before, now = min(curve[:-PLATEAU_EPOCHS]), min(curve[-PLATEAU_EPOCHS:])
+            if now > before * (1 - PLATEAU_GAIN):
+                break
+        if epoch % 50 == 0:
+            print(f"  epoch {epoch:4d}  loss {curve[-1]:.2e}", flush=True)
+    model.stats = stats  # type: ignore[attr-defined]
+    return model.eval(), {"epochs": len(curve), "train_s": round(time.monotonic() - start, 1), "loss_curve": curve}
+
+
+@torch.no_grad()
+def rollouts(model: BC, task: str, episodes: int) -> dict:
+    from lerobot_skillret.kitchen.gym_env import KitchenEnv
+
+    env = KitchenEnv(task=task)
+    s = model.stats  # type: ignore[attr-defined]
+    successes, progress = [], []
+    for episode in range(episodes):
+        obs, _ = env.reset(seed=EVAL_SEED0 + episode)
+        best, done, queue = 0.0, False, []
+        while not done:
+            if not queue:
+                x = torch.from_numpy(np.concatenate([obs["agent_pos"], obs["environment_state"]])).float()
+                chunk = model(((x - s["obs_mean"]) / s["obs_std"])[None])[0] * s["act_std"] + s["act_mean"]
+                queue = list(chunk[:EXECUTE].numpy())
+            obs, reward, terminated, truncated, info = env.step(queue.pop(0))
+            best, done = max(best, reward), terminated or truncated
+        successes.append(bool(info["is_success"]))
+        progress.append(best)
+        print(f"  rollout {episode:3d}: success {successes[-1]}  progress {best:.2f}", flush=True)
+    env.close()
+    return {
+        "rollouts": episodes,
+        "eval_seeds": [EVAL_SEED0, EVAL_SEED0 + episodes - 1],
+        "success": sum(successes) / episodes,
+        "progress": float(np.mean(progress)),
+    }
+
+
+def demos(task: str, episodes: int, workers: int, data_dir: Path) -> Path:
+    root = data_dir / f"demos_{task}_n{episodes}"
+    if not (root / "meta" / "info.json").is_file():
+        cmd = [str(Path(sys.executable).parent / "skillret-generate"), "demos", "--task", task, "--root", str(root)]
+        subprocess.run([*cmd, "--episodes", str(episodes), "--workers", str(workers), "--overwrite"], check=True)
+    return root
+
+
+def run_task(task: str, args: argparse.Namespace) -> dict:
+    root = demos(task, args.demos, args.workers, args.data_dir)
+    columns = EpisodeColumns.from_dataset(f"local/kitchen_demos_{task}", root)
+    stats = demo_statistics(columns, root)
+    print(f"{task}: {stats}", flush=True)
+    model, training = train(*chunk_dataset(columns), args.max_epochs, args.batch_size, args.seed)
+    print(f"{task}: trained {training['epochs']} epochs in {training['train_s']} s", flush=True)
+    start = time.monotonic()
+    evaluation = rollouts(model, task, args.rollouts)
+    return {
+        "task": task,
+        "level": TASKS[task].level,
+        "demos": stats,
+        "reference": f"MLP 3x512, chunk {CHUNK}, execute {EXECUTE}, batch {args.batch_size}, seed {args.seed}",
+        **{k: v for k, v in training.items() if k != "loss_curve"},
+        "final_loss": training["loss_curve"][-1],
+        "loss_curve_every_10_epochs": training["loss_curve"][::10],
+        "eval_s": round(time.monotonic() - start, 1),
+        **evaluation,
+    }
+
+
+def table(folder: Path) -> str:
+    rows = sorted((json.loads(p.read_text()) for p in folder.glob("*.json")), key=lambda r: (r["level"], r["task"]))
+    lines = [
+        "| level | task | BC success | progress | rollouts | epochs | final loss | train min | demo length (median) "
+        "| expert |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['level']} | {r['task']} | {100 * r['success']:.0f} % | {100 * r['progress']:.0f} % | {r['rollouts']} "
+            f"| {r['epochs']} | {r['final_loss']:.1e} | {r['train_s'] / 60:.1f} | {r['demos']['length_min_median_max'][1]} "
+            f"| {r['demos']['expert_success']} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--tasks", nargs="*", default=sorted(TASKS, key=lambda t: (TASKS[t].level, t)))
+    parser.add_argument("--demos", type=int, default=30, help="target demonstrations per task")
+    parser.add_argument("--rollouts", type=int, default=50, help="rollouts from held-out initial states")
+    parser.add_argument("--max-epochs", type=int, default=2000, help="upper bound; training stops at the plateau")
+    parser.add_argument("--batch-size", type=int, default=512)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=1, help="simulation workers of the demo generator")
+    parser.add_argument("--data-dir", type=Path, default=ROOT / "outputs" / "learnability")
+    parser.add_argument("--results", type=Path, default=RESULTS)
+    parser.add_argument("--force", action="store_true", help="redo tasks that already have a result")
+    parser.add_argument("--table", action="store_true", help="print the table of stored results and exit")
+    args = parser.parse_args()
+    unknown = [t for t in args.tasks if t not in TASKS]
+    if unknown:
+        parser.error(f"unknown tasks {unknown}; choose from {sorted(TASKS)}")
+    if not args.table:
+        os.environ.setdefault("HF_HUB_OFFLINE", "1")
+        for task in args.tasks:
+            out = args.results / f"{task}.json"
+            if out.exists() and not args.force:
+                print(f"{task}: done already ({out}); --force to redo", flush=True)
+                continue
+            write_json_atomic(out, run_task(task, args))
+        write_text_atomic(args.results / "results.md", table(args.results))
+    print(table(args.results))
+
+
+if __name__ == "__main__":
+    main()
