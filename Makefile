@@ -3,7 +3,8 @@
 #   make test   -> the whole test suite (creates/reuses the venv, installs, runs pytest)
 # VENV can point outside the clone (CI keys a cached venv on the dependency pins, see .ci/run).
 # LeRobot >= 0.5 needs Python 3.12: the first python3.12 that runs (PATH, then pyenv's), or PYTHON=... to choose.
-PYTHON ?= $(shell for p in python3.12 $$(pyenv root 2>/dev/null)/versions/3.12*/bin/python3.12; do \
+PYTHON ?= $(shell for p in python3.12 $$(pyenv root 2>/dev/null)/versions/3.12*/bin/python3.12 \
+	$$HOME/.pyenv/versions/3.12*/bin/python3.12 /usr/local/bin/python3.12 /usr/bin/python3.12; do \
 	$$p -c 'import sys; assert sys.version_info[:2] == (3, 12)' 2>/dev/null && { echo $$p; break; }; done)
 VENV ?= .venv
 BIN := $(VENV)/bin

@@ -78,3 +78,11 @@ def test_episodes_shorter_than_the_window_are_padded_with_a_warning(tmp_path, ca
     with caplog.at_level("WARNING"):
         WindowSampler(columns, history=1, horizon=4)
     assert "shorter than the window" not in caplog.text
+
+
+def test_sample_weighting_is_refused_with_the_reason(prior_root):
+    """lerobot-train's --sample_weighting calls forward(batch, reduction="none")."""
+    config = tiny_config()
+    policy = build_policy(config, PRIOR_REPO, prior_root)
+    with pytest.raises(ValueError, match=r"reduction='none'.*Train without --sample_weighting"):
+        policy.forward({}, reduction="none")

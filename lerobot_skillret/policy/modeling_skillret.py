@@ -150,8 +150,17 @@ class SkillRetPolicy(PreTrainedPolicy):
 
     # --- training ---------------------------------------------------------------------------------------------
 
-    def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict[str, float]]:
-        """One training step's loss and its terms (Python floats), for the configured stage."""
+    def forward(self, batch: dict[str, Tensor], reduction: str = "mean") -> tuple[Tensor, dict[str, float]]:
+        """One training step's loss and its terms (Python floats), for the configured stage.
+
+        `reduction="none"` is what lerobot-train asks for with `--sample_weighting`; skillret's loss mixes the
+        batch's windows with prior and retrieved windows the policy draws itself, so it has no per-sample form."""
+        if reduction != "mean":
+            raise ValueError(
+                f"skillret computes one loss per batch (reduction='mean'), not reduction={reduction!r}: its loss mixes "
+                "the batch's target windows with prior and retrieved windows. Train without --sample_weighting; "
+                "the retrieved windows' weight is --policy.retrieved_weight."
+            )
         self.normalizer.check_ready()
         if "index" not in batch:
             raise KeyError(
