@@ -34,7 +34,7 @@ import torch
 from torch import nn
 
 from lerobot_skillret.data.windows import EpisodeColumns
-from lerobot_skillret.files import write_json_atomic, write_text_atomic
+from lerobot_skillret.files import write_atomic, write_json_atomic, write_text_atomic
 from lerobot_skillret.kitchen.observations import load_kitchen_meta
 from lerobot_skillret.kitchen.tasks import TASKS
 
@@ -198,6 +198,26 @@ def table(folder: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
+def plot_curves(folder: Path) -> Path:
+    """One log-scale training-loss curve per stored task: each should flatten out before its last epoch."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axis = plt.subplots(figsize=(7, 4))
+    for path in sorted(folder.glob("*.json")):
+        r = json.loads(path.read_text())
+        curve = r["loss_curve_every_10_epochs"]
+        axis.plot([10 * i for i in range(len(curve))], curve, label=f"{r['task']} (level {r['level']})")
+    axis.set(yscale="log", xlabel="epoch", ylabel="training loss (normalised MSE)", title="BC reference per task")
+    axis.legend(fontsize=7)
+    out = folder / "loss_curves.png"
+    write_atomic(out, lambda tmp: figure.savefig(tmp, dpi=110, bbox_inches="tight", format="png"))
+    plt.close(figure)
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tasks", nargs="*", default=sorted(TASKS, key=lambda t: (TASKS[t].level, t)))
@@ -225,6 +245,7 @@ def main() -> None:
             write_json_atomic(out, run_task(task, args))
         write_text_atomic(args.results / "results.md", table(args.results))
     print(table(args.results))
+    print(f"loss curves: {plot_curves(args.results)}")
 
 
 if __name__ == "__main__":
