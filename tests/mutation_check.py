@@ -109,6 +109,30 @@ MUTANTS = [
         "torch.ones_like(pad, dtype=torch.bool, device=self._device())",
         tuple(POLICY_TESTS),
     ),
+    Mutant(
+        "retrieve_farthest",
+        "retrieval keeps the farthest candidates instead of the nearest",
+        PKG / "retrieval/select.py",
+        "rows = torch.topk(value, count, largest=False, sorted=False).indices",
+        "rows = torch.topk(value, count, largest=True, sorted=False).indices",
+        tuple(RETRIEVAL_TESTS),
+    ),
+    Mutant(
+        "retrieval_count",
+        "K rounded down instead of round(r * candidates)",
+        PKG / "retrieval/select.py",
+        "return round(fraction * num_candidates)",
+        "return int(fraction * num_candidates)",
+        tuple(RETRIEVAL_TESTS),
+    ),
+    Mutant(
+        "exact_band",
+        "rows near the cut not re-scored exactly (float32 set instead of float64's)",
+        PKG / "retrieval/select.py",
+        "band = torch.nonzero(~sure_in & (low <= cut_high)).squeeze(1)",
+        "band = torch.nonzero(~sure_in & (low < cut_low)).squeeze(1)",
+        tuple(RETRIEVAL_TESTS),
+    ),
 ]
 
 

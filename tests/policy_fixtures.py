@@ -95,3 +95,37 @@ def batch_at(config: SkillRetConfig, repo_id: str, root: Path, indices: list[int
         deltas["action"] = [i / fps for i in config.action_delta_indices]
     dataset = LeRobotDataset(repo_id, root=root, delta_timestamps=deltas)
     return torch.utils.data.default_collate([dataset[i] for i in indices])
+
+
+def write_retrieval(path: Path, stage1_dir: Path, prior_root: Path, target_root: Path, indices: list[int]) -> Path:
+    """A retrieval file as `skillret-retrieve` writes it, selecting the prior windows at `indices`."""
+    from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
+    from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
+    from lerobot_skillret.retrieval.schema import RetrievalResult
+
+    stage1 = SkillRetPolicy.from_pretrained(stage1_dir)
+    sampler = WindowSampler(EpisodeColumns.from_dataset(PRIOR_REPO, prior_root), history=HISTORY, horizon=HORIZON)
+    latent, _ = stage1.encode_skill(sampler.gather(torch.tensor(indices)))
+    return RetrievalResult(
+        prior_index=torch.tensor(indices),
+        distance=torch.zeros(len(indices)),
+        latent=latent,
+        settings={"metric": "l2"},
+        checkpoint_fingerprint=checkpoint_fingerprint(stage1_dir),
+        prior_fingerprint=dataset_fingerprint(prior_root),
+        target_fingerprint=dataset_fingerprint(target_root),
+    ).save(path)
+
+
+def stage2_cli(stage1: Path, target: Path, prior: Path, retrieval: Path, output_dir: Path) -> list[str]:
+    """lerobot-train options of a stage-2 run from `stage1` on `target`, with prior and retrieved windows."""
+    return [
+        f"--policy.path={stage1}",
+        "--policy.stage=policy",
+        f"--dataset.repo_id={TARGET_REPO}",
+        f"--dataset.root={target}",
+        f"--output_dir={output_dir}",
+        f"--policy.prior_repo_id={PRIOR_REPO}",
+        f"--policy.prior_root={prior}",
+        f"--policy.retrieval_path={retrieval}",
+    ]

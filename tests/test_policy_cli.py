@@ -16,14 +16,12 @@ import pytest
 import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
-from policy_fixtures import PRIOR_REPO, TARGET_REPO, TINY_CLI
+from policy_fixtures import PRIOR_REPO, TARGET_REPO, TINY_CLI, stage2_cli, write_retrieval
 from safetensors.torch import load_file
 from synthetic import make_synthetic_dataset
 
-from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
-from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
+from lerobot_skillret.data.fingerprint import checkpoint_fingerprint
 from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
-from lerobot_skillret.retrieval.schema import RetrievalResult
 
 BIN = Path(sys.executable).parent
 CPU_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "policy" / "cpu.json"  # the documented commands
@@ -137,29 +135,11 @@ def test_two_stages_with_lerobot_train_then_lerobot_eval(tmp_path, monkeypatch):
     assert (stage1 / "model.safetensors").is_file()
 
     # A retrieval file on that checkpoint (what skillret-retrieve writes), a few prior windows.
-    skills = SkillRetPolicy.from_pretrained(stage1)
-    indices = torch.tensor([2, 11, 40, 63])
-    sampler = WindowSampler(EpisodeColumns.from_dataset(PRIOR_REPO, prior), history=3, horizon=4)
-    latent, _ = skills.encode_skill(sampler.gather(indices))
-    retrieval = RetrievalResult(
-        prior_index=indices,
-        distance=torch.zeros(4),
-        latent=latent,
-        checkpoint_fingerprint=checkpoint_fingerprint(stage1),
-        prior_fingerprint=dataset_fingerprint(prior),
-        target_fingerprint=dataset_fingerprint(target),
-    ).save(tmp_path / "retrieval.safetensors")
+    retrieval = write_retrieval(tmp_path / "retrieval.safetensors", stage1, prior, target, [2, 11, 40, 63])
 
     # Stage 2 (Algorithm 2) on the target dataset, from the stage-1 checkpoint.
     lerobot_train(
-        f"--policy.path={stage1}",
-        "--policy.stage=policy",
-        f"--dataset.repo_id={TARGET_REPO}",
-        f"--dataset.root={target}",
-        f"--output_dir={tmp_path / 'stage2'}",
-        f"--policy.prior_repo_id={PRIOR_REPO}",
-        f"--policy.prior_root={prior}",
-        f"--policy.retrieval_path={retrieval}",
+        *stage2_cli(stage1, target, prior, retrieval, tmp_path / "stage2"),
         "--policy.fast_windows=false",  # stage 1 used cpu.json's fast windows; this covers LeRobot's own windows
     )
     stage2 = tmp_path / "stage2" / "checkpoints" / "last" / "pretrained_model"

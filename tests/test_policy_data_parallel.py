@@ -12,14 +12,8 @@ import sys
 from pathlib import Path
 
 import pytest
-import torch
-from policy_fixtures import PRIOR_REPO, TARGET_REPO, TINY_CLI
+from policy_fixtures import PRIOR_REPO, TARGET_REPO, TINY_CLI, stage2_cli, write_retrieval
 from synthetic import make_synthetic_dataset
-
-from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
-from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
-from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
-from lerobot_skillret.retrieval.schema import RetrievalResult
 
 pytestmark = pytest.mark.slow
 
@@ -83,28 +77,11 @@ def test_both_stages_train_on_two_ranks_with_their_own_windows(tmp_path):
     stage1 = tmp_path / "stage1" / "checkpoints" / "last" / "pretrained_model"
     assert (stage1 / "model.safetensors").is_file()
 
-    skills = SkillRetPolicy.from_pretrained(stage1)
-    indices = torch.tensor([2, 11, 40, 63, 77])
-    sampler = WindowSampler(EpisodeColumns.from_dataset(PRIOR_REPO, prior), history=3, horizon=4)
-    latent, _ = skills.encode_skill(sampler.gather(indices))
-    retrieval = RetrievalResult(
-        prior_index=indices,
-        distance=torch.zeros(len(indices)),
-        latent=latent,
-        checkpoint_fingerprint=checkpoint_fingerprint(stage1),
-        prior_fingerprint=dataset_fingerprint(prior),
-        target_fingerprint=dataset_fingerprint(target),
-    ).save(tmp_path / "retrieval.safetensors")
+    indices = [2, 11, 40, 63, 77]
+    retrieval = write_retrieval(tmp_path / "retrieval.safetensors", stage1, prior, target, indices)
 
     log = train_on_two_ranks(
-        f"--policy.path={stage1}",
-        "--policy.stage=policy",
-        f"--dataset.repo_id={TARGET_REPO}",
-        f"--dataset.root={target}",
-        f"--output_dir={tmp_path / 'stage2'}",
-        f"--policy.prior_repo_id={PRIOR_REPO}",
-        f"--policy.prior_root={prior}",
-        f"--policy.retrieval_path={retrieval}",
+        *stage2_cli(stage1, target, prior, retrieval, tmp_path / "stage2"),
     )
     retrieved, ranks = ranks_in(log)
     assert retrieved == len(indices)  # every rank read the same retrieved set (checked across ranks)

@@ -15,17 +15,17 @@ from policy_fixtures import (
     build_policy,
     tiny_config,
     training_batch,
+    write_retrieval,
 )
 from synthetic import make_synthetic_dataset
 
-from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
+from lerobot_skillret.data.fingerprint import checkpoint_fingerprint
 from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
 from lerobot_skillret.policy.latent_policy import RETRIEVED_ID, TARGET_ID
 from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
 from lerobot_skillret.policy.networks import ObservationEncoder, center_crop, random_crop
 from lerobot_skillret.policy.normalization import SkillNormalizer
 from lerobot_skillret.policy.processor_skillret import make_skillret_pre_post_processors
-from lerobot_skillret.retrieval.schema import RetrievalResult
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -58,21 +58,6 @@ def stage2_policy(stage1_dir: Path, target_root: Path, **overrides) -> SkillRetP
     stage1 = SkillRetPolicy.from_pretrained(stage1_dir)
     config.input_features, config.output_features = stage1.config.input_features, stage1.config.output_features
     return SkillRetPolicy.from_pretrained(stage1_dir, config=config, dataset_stats=meta.stats, dataset_meta=meta)
-
-
-def write_retrieval(path: Path, stage1_dir: Path, prior_root: Path, target_root: Path, indices: list[int]) -> Path:
-    stage1 = SkillRetPolicy.from_pretrained(stage1_dir)
-    sampler = WindowSampler(EpisodeColumns.from_dataset(PRIOR_REPO, prior_root), history=3, horizon=4)
-    latent, _ = stage1.encode_skill(sampler.gather(torch.tensor(indices)))
-    return RetrievalResult(
-        prior_index=torch.tensor(indices),
-        distance=torch.zeros(len(indices)),
-        latent=latent,
-        settings={"metric": "l2"},
-        checkpoint_fingerprint=checkpoint_fingerprint(stage1_dir),
-        prior_fingerprint=dataset_fingerprint(prior_root),
-        target_fingerprint=dataset_fingerprint(target_root),
-    ).save(path)
 
 
 def test_stage1_forward_shapes_and_terms(prior_root):

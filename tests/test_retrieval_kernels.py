@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from lerobot_skillret.retrieval.kernels import NearestTarget
+from lerobot_skillret.retrieval.kernels import NearestTarget, Scores
 from lerobot_skillret.retrieval.select import retrieval_count, smallest
 
 
@@ -146,3 +146,15 @@ def test_empty_prior_and_zero_count():
     assert scores.value.shape == (0,)
     rows, values = smallest(engine.score(torch.randn(5, 8)), 0)
     assert rows.numel() == 0 and values.numel() == 0
+
+
+def test_retrieval_count_rounds_to_nearest():
+    """K = round(r * candidates): 0.19 of 10 candidates is 2 windows, not 1 (guards truncation)."""
+    assert [retrieval_count(r, 10) for r in (0.0, 0.04, 0.06, 0.19, 1.0)] == [0, 0, 1, 2, 10]
+
+
+def test_smallest_without_exact_rescoring_keeps_the_nearest():
+    """The plain top-k path (`--exact=false`) keeps the k smallest values, sorted (guards keeping the largest)."""
+    value = torch.tensor([0.5, 0.1, 0.9, 0.3, 0.7])
+    rows, values = smallest(Scores(value=value, nearest=None, margin=torch.zeros(5)), 2)
+    assert rows.tolist() == [1, 3] and values.tolist() == pytest.approx([0.1, 0.3])

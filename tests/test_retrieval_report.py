@@ -7,9 +7,8 @@ import json
 import pytest
 import torch
 
-from lerobot_skillret.retrieval.api import ReportInputs
 from lerobot_skillret.retrieval.engine import Selection
-from lerobot_skillret.retrieval.report import QUANTILES, _quantiles, label_names, write_report
+from lerobot_skillret.retrieval.report import QUANTILES, ReportInputs, _quantiles, label_names, write_report
 from lerobot_skillret.retrieval.schema import RetrievalResult
 
 

@@ -26,11 +26,10 @@ from lerobot_skillret.kitchen.observations import KITCHEN_META, PRIMITIVE_KEY, l
 from lerobot_skillret.retrieval.engine import (
     STREAM_CANDIDATES,
     STREAM_TARGETS,
-    Selection,
     generator,
     select_windows,
 )
-from lerobot_skillret.retrieval.report import label_names, relevant_labels, write_report
+from lerobot_skillret.retrieval.report import ReportInputs, label_names, relevant_labels, write_report
 from lerobot_skillret.retrieval.schema import RetrievalResult
 from lerobot_skillret.retrieval.settings import EVERY_WINDOW, RetrievalSettings
 
@@ -236,21 +235,6 @@ def retrieve(
         relevant_primitives=relevant_primitives,
     )
     return _finish(result, output, report_dir, context)
-
-
-@dataclass
-class ReportInputs:
-    """What the report needs beyond the retrieval file: every candidate's score, latent and labels."""
-
-    selection: Selection
-    prior_mean: Tensor  # [N, D] candidates' latents
-    target_mean: Tensor  # [M, D]
-    anchors: Tensor  # [N] global frame index of each candidate's anchor
-    episode_start: Tensor | None = None  # [N] first frame of each candidate's episode
-    primitive: Tensor | None = None  # [N] primitive label at each candidate's anchor frame
-    target_primitive: Tensor | None = None  # [M] primitive label at each target window's anchor frame
-    primitive_names: list[str] | None = None
-    relevant_primitives: list[str] | None = None
 
 
 def _labels(columns: EpisodeColumns, anchors: Tensor) -> Tensor | None:

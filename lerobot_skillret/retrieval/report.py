@@ -16,18 +16,17 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import torch
 from torch import Tensor
 
 from lerobot_skillret.files import write_atomic, write_text_atomic
+from lerobot_skillret.retrieval.engine import Selection
 from lerobot_skillret.retrieval.schema import RetrievalResult
-
-if TYPE_CHECKING:
-    from lerobot_skillret.retrieval.api import ReportInputs
 
 QUANTILES = (0.0, 0.01, 0.05, 0.1, 0.25, 0.5, 0.75, 0.9, 0.99, 1.0)
 PCA_PRIOR_POINTS = 5000
@@ -52,6 +51,21 @@ def relevant_labels(relevant: Iterable[str], names: Sequence[str]) -> Tensor:
 
 
 # --- summary ------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class ReportInputs:
+    """What the report needs beyond the retrieval file: every candidate's score, latent and labels."""
+
+    selection: Selection
+    prior_mean: Tensor  # [N, D] candidates' latents
+    target_mean: Tensor  # [M, D]
+    anchors: Tensor  # [N] global frame index of each candidate's anchor
+    episode_start: Tensor | None = None  # [N] first frame of each candidate's episode
+    primitive: Tensor | None = None  # [N] primitive label at each candidate's anchor frame
+    target_primitive: Tensor | None = None  # [M] primitive label at each target window's anchor frame
+    primitive_names: list[str] | None = None
+    relevant_primitives: list[str] | None = None
 
 
 def summarize(result: RetrievalResult, inputs: ReportInputs | None) -> dict[str, Any]:
