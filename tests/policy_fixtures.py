@@ -19,6 +19,19 @@ PRIOR_REPO = "test/prior"
 TARGET_REPO = "test/target"
 HORIZON, HISTORY = 4, 3
 
+# A few-step lerobot-train run on the documented CPU config, one intra-op thread (on a shared 2-core machine
+# oversubscribed torch threads make tiny steps 20x slower), offline.
+CPU_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "policy" / "cpu.json"
+TRAIN_ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
+QUICK_TRAIN = [
+    f"--config_path={CPU_CONFIG}",
+    "--policy.device=cpu",
+    "--num_workers=0",
+    "--steps=3",
+    "--batch_size=4",
+    "--save_freq=3",
+]
+
 # CLI form of TINY, for lerobot-train subprocesses.
 TINY_CLI = [
     f"--policy.horizon={HORIZON}",

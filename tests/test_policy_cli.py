@@ -16,7 +16,7 @@ import pytest
 import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
-from policy_fixtures import PRIOR_REPO, TARGET_REPO, TINY_CLI, stage2_cli, write_retrieval
+from policy_fixtures import PRIOR_REPO, QUICK_TRAIN, TARGET_REPO, TINY_CLI, TRAIN_ENV, stage2_cli, write_retrieval
 from safetensors.torch import load_file
 from synthetic import make_synthetic_dataset
 
@@ -24,9 +24,6 @@ from lerobot_skillret.data.fingerprint import checkpoint_fingerprint
 from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
 
 BIN = Path(sys.executable).parent
-CPU_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "policy" / "cpu.json"  # the documented commands
-# One intra-op thread: on a shared 2-core machine oversubscribed torch threads make tiny steps 20x slower.
-ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
 STATE_DIM, ENV_DIM, ACTION_DIM = 6, 5, 7
 
 
@@ -102,15 +99,10 @@ def lerobot_train(*args: str) -> None:
     result = subprocess.run(
         [
             str(BIN / "lerobot-train"),
-            f"--config_path={CPU_CONFIG}",
-            "--policy.device=cpu",
-            "--num_workers=0",
-            "--steps=3",
-            "--batch_size=4",
-            "--save_freq=3",
+            *QUICK_TRAIN,
             *args,
         ],
-        env=ENV,
+        env=TRAIN_ENV,
         capture_output=True,
         text=True,
         timeout=300,

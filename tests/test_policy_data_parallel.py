@@ -5,21 +5,18 @@ retrieved set."""
 from __future__ import annotations
 
 import ast
-import os
 import re
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
-from policy_fixtures import PRIOR_REPO, TARGET_REPO, TINY_CLI, stage2_cli, write_retrieval
+from policy_fixtures import PRIOR_REPO, QUICK_TRAIN, TARGET_REPO, TINY_CLI, TRAIN_ENV, stage2_cli, write_retrieval
 from synthetic import make_synthetic_dataset
 
 pytestmark = pytest.mark.slow
 
 BIN = Path(sys.executable).parent
-CPU_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "policy" / "cpu.json"
-ENV = {**os.environ, "HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
 RANK_LINE = re.compile(r"skillret data-parallel: 2 ranks, same retrieved set \((\d+) windows\); per rank: (.*)")
 
 
@@ -31,17 +28,12 @@ def train_on_two_ranks(*args: str) -> str:
             "--standalone",
             "--nproc_per_node=2",
             str(BIN / "lerobot-train"),
-            f"--config_path={CPU_CONFIG}",
-            "--policy.device=cpu",
-            "--num_workers=0",
-            "--steps=3",
-            "--batch_size=4",
-            "--save_freq=3",
+            *QUICK_TRAIN,
             "--log_freq=1",
             *TINY_CLI,
             *args,
         ],
-        env=ENV,
+        env=TRAIN_ENV,
         capture_output=True,
         text=True,
         timeout=600,

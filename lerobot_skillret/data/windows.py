@@ -20,9 +20,9 @@ torch's intra-op threads compete with other work for the cores (training, other 
 `np.take` is single-threaded by construction; the sampler never changes the process-wide thread settings.
 
 Camera windows (optional, `WindowSampler(..., frames=FrameReader(...))`): images and videos cannot live in the
-column table, so `FrameReader` decodes them through LeRobot's own readers (the HF image column, `_query_videos`
-of its `DatasetReader` for videos), once per distinct frame of a batch: overlapping windows share their frames, whereas `__getitem__`
-decodes F+H-1 frames per window. Decoding itself dominates, so the gain is modest at random anchors (4.5 vs
+column table, so `FrameReader` decodes them through LeRobot's own readers (the HF image column, its
+`DatasetReader._query_videos` for videos), once per distinct frame of a batch: overlapping windows share their
+frames, whereas `__getitem__` decodes F+H-1 frames per window. Decoding itself dominates, so the gain is modest at random anchors (4.5 vs
 5.4 ms per F=H=10 window of one 8x8 camera) and grows with overlap.
 
 Semantics equal LeRobot's: observation keys get frames anchor-(F-1) .. anchor+H-1, every other key (`action`, and
@@ -304,8 +304,8 @@ class FrameReader:
 def _warn_short_episodes(columns: EpisodeColumns, horizon: int) -> None:
     """Episodes shorter than a window are kept, padded past their end (as LeRobot pads, and the seed does): say
     so, since every window of such an episode is partly padding."""
-    start = _numpy_view(columns.td["episode_start"])
-    lengths = _numpy_view(columns.td["episode_end"])[np.unique(start)] - np.unique(start)
+    firsts = np.unique(_numpy_view(columns.td["episode_start"]))
+    lengths = _numpy_view(columns.td["episode_end"])[firsts] - firsts
     short = int((lengths < horizon).sum())
     if short:
         log.warning(

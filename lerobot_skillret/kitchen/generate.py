@@ -148,7 +148,6 @@ def generate(args: argparse.Namespace) -> Path:
     root = Path(args.root).expanduser().resolve()
     if root.exists() and not args.overwrite:
         raise FileExistsError(f"{root} already exists; pass --overwrite or choose another --root")
-    root.parent.mkdir(parents=True, exist_ok=True)
     features = O.dataset_features(tuple(args.cameras), O.DEFAULT_IMAGE_SIZE)
     jobs = _jobs(args)
     episodes_meta, attempts, failures = [], 0, 0

@@ -217,6 +217,9 @@ MULTI_STEP: tuple[Task, ...] = tuple(
 )
 
 
+ENTRY_POINT_GROUP = "lerobot_skillret.tasks"
+
+
 def _plugin_tasks() -> list[Task]:
     """Tasks declared by installed distributions in the entry-point group `lerobot_skillret.tasks`."""
     found: list[Task] = []
@@ -243,7 +246,6 @@ def _registry(tasks: Iterable[Task]) -> dict[str, Task]:
     return registry
 
 
-ENTRY_POINT_GROUP = "lerobot_skillret.tasks"
 TASKS: dict[str, Task] = _registry([*LADDER, *MULTI_STEP, *_plugin_tasks()])
 
 

@@ -8,6 +8,7 @@ Stage `policy`: temporal pairs from the target dataset (`--dataset.*`); prior wi
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -84,7 +85,9 @@ class TrainingData:
             return
         retrieved = None if self.retrieved is None else self.retrieved.prior_index
         mine = {
-            "retrieved": None if retrieved is None else (len(retrieved), int(retrieved.sum())),
+            "retrieved": None
+            if retrieved is None
+            else (len(retrieved), hashlib.sha1(retrieved.numpy().tobytes()).hexdigest()[:12]),
             "seeds": [source.seed for source in (self.own, self.prior) if source is not None],
             "anchors": anchors[:6].tolist(),
         }
