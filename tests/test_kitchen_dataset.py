@@ -61,6 +61,23 @@ def test_demos_succeed_and_play_is_labelled(datasets):
     assert play["primitive_names"] == list(PRIMITIVES) and play["episodes"][0]["length"] == 120
     labels = np.asarray(_load(datasets / "play").hf_dataset[O.PRIMITIVE_KEY]).reshape(-1)
     assert labels.min() >= 0 and labels.max() < len(PRIMITIVES)
+    counted = {name: int((labels == i).sum()) for i, name in enumerate(PRIMITIVES)}
+    assert play["primitive_frames"] == counted and sum(counted.values()) == 120
+
+
+def test_reset_to_a_recorded_initial_state_reproduces_the_first_frame(datasets):
+    from lerobot_skillret.kitchen.gym_env import KitchenEnv
+
+    meta = O.load_kitchen_meta(datasets / "demos")["episodes"][1]
+    first = _load(datasets / "demos").hf_dataset.filter(lambda row: row["episode_index"] == 1)[0]
+    env = KitchenEnv(task="breakfast")
+    observation, _ = env.reset(seed=123, options={"initial_state": meta["initial_state"]})
+    np.testing.assert_array_equal(observation["agent_pos"], np.asarray(first["observation.state"], np.float32))
+    np.testing.assert_array_equal(
+        observation["environment_state"], np.asarray(first["observation.environment_state"], np.float32)
+    )
+    assert env.unmet_goals() == [goal.name for goal in TASKS["breakfast"].goals]
+    env.close()
 
 
 def test_replay_of_recorded_actions_reproduces_success(datasets):

@@ -130,3 +130,22 @@ def test_tasks_from_an_installed_entry_point_reach_every_command(tmp_path):
         env=env,
     ).stdout
     assert "milk_right_of_plate" in generate_help
+
+
+def test_play_draws_each_primitive_equally_often_whatever_its_number_of_calls():
+    from lerobot_skillret.kitchen.play import draw_step
+    from lerobot_skillret.kitchen.tasks import Step
+
+    options = [Step("pick_place", ("bread", f"region{i}")) for i in range(20)] + [Step("toggle", ("light", "on"))]
+    rng = np.random.default_rng(0)
+    draws = [draw_step(options, rng).primitive for _ in range(2000)]
+    assert 0.45 < draws.count("toggle") / len(draws) < 0.55  # uniform over calls would give 1/21
+
+
+def test_play_starts_from_every_built_in_task_scene():
+    from lerobot_skillret.kitchen.play import play_scene_task
+    from lerobot_skillret.kitchen.tasks import LADDER, MULTI_STEP
+
+    rng = np.random.default_rng(0)
+    seen = {play_scene_task(rng).name for _ in range(400)}
+    assert seen == {task.name for task in (*LADDER, *MULTI_STEP)}

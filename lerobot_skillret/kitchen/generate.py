@@ -3,8 +3,8 @@
 Episodes are simulated in worker processes (seeded per episode, so the output depends only on --seed and the
 sizes, not on --workers) and written by this process into a temporary folder renamed into place at the end:
 an interrupted run leaves no dataset behind. Besides the LeRobot files the dataset root holds
-`meta/kitchen.json`: primitive names (for the `primitive_index` column), per-episode task, seed, success and
-initial MuJoCo state (for exact replays), and the generator settings.
+`meta/kitchen.json`: primitive names (for the `primitive_index` column), frames per primitive, per-episode task,
+seed, success and initial MuJoCo state (for exact replays), and the generator settings.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import os
 import signal
 import sys
 import traceback
+from collections import Counter
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from multiprocessing.connection import Connection
@@ -150,7 +151,7 @@ def generate(args: argparse.Namespace) -> Path:
         raise FileExistsError(f"{root} already exists; pass --overwrite or choose another --root")
     features = O.dataset_features(tuple(args.cameras), O.DEFAULT_IMAGE_SIZE)
     jobs = _jobs(args)
-    episodes_meta, attempts, failures = [], 0, 0
+    episodes_meta, attempts, failures, primitive_frames = [], 0, 0, Counter()
     with staged_dir(root) as tmp:  # an interrupted run leaves no dataset behind
         dataset = LeRobotDataset.create(
             args.repo_id,
@@ -169,6 +170,7 @@ def generate(args: argparse.Namespace) -> Path:
                     continue
                 task_text = TASKS[args.task].description if args.kind == "demos" else PLAY_TASK_TEXT
                 _write_episode(dataset, episode, task_text)
+                primitive_frames.update(PRIMITIVES[int(label[0])] for label in episode.frames[O.PRIMITIVE_KEY])
                 episodes_meta.append(
                     {
                         "episode_index": len(episodes_meta),
@@ -196,6 +198,7 @@ def generate(args: argparse.Namespace) -> Path:
             "seed": args.seed,
             "cameras": list(args.cameras),
             "primitive_names": list(PRIMITIVES),
+            "primitive_frames": {name: primitive_frames[name] for name in PRIMITIVES},
             "attempts": attempts,
             "failed_attempts": failures,
             "episodes": episodes_meta,
@@ -203,6 +206,8 @@ def generate(args: argparse.Namespace) -> Path:
         (tmp / O.KITCHEN_META).write_text(json.dumps(meta))
     if args.kind == "demos":
         print(f"{args.task}: kept {len(episodes_meta)} successful demos of {attempts} attempts ({failures} failed)")
+    total = max(sum(primitive_frames.values()), 1)
+    print("frames per primitive: " + ", ".join(f"{n} {c} ({c / total:.0%})" for n, c in primitive_frames.items()))
     print(f"wrote {root}")
     return root
 

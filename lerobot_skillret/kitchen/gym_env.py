@@ -66,8 +66,14 @@ class KitchenEnv(gym.Env):
         return O.build_observation(self.scene, self._cam, self.cameras)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """`options={"initial_state": state}` restores a recorded episode's initial MuJoCo state (the
+        `initial_state` a generated dataset stores in meta/kitchen.json) instead of sampling one."""
         super().reset(seed=seed)
-        reset_scene(self.scene, self._task, self.np_random)
+        if options and options.get("initial_state") is not None:
+            self.scene.reset()
+            self.scene.set_sim_state(np.asarray(options["initial_state"], dtype=np.float64))
+        else:
+            reset_scene(self.scene, self._task, self.np_random)
         self._steps = 0
         self._frame = None
         self._met_at_reset = self._task.goals_met(self.scene)
@@ -81,6 +87,10 @@ class KitchenEnv(gym.Env):
         reward = 1.0 if success else self._task.progress(self.scene, self._met_at_reset)
         truncated = self._steps >= self._max_episode_steps and not success
         return self._obs(), reward, success, truncated, {"is_success": success}
+
+    def unmet_goals(self) -> list[str]:
+        """Names of the task's sub-goals that do not hold now (diagnostics: where a rollout stopped)."""
+        return self._task.unmet(self.scene)
 
     def render(self):
         """Video frame; with `render_stride` k a fresh frame every k steps (rendering costs ~5x a sim step)."""

@@ -1,0 +1,94 @@
+"""Can a checkpoint's skill decoder execute a task's demonstrations when it is handed the right skills?
+
+Each demonstration's initial state is restored in the kitchen env and, every H steps, the checkpoint's encoder
+encodes the demonstration's own window at that time (the oracle latent); the closed-loop decoder executes it. High
+success here and low success of the trained policy points at the latent policy; low success here points at the
+skill model. On demonstrations that no run trained on (another generation seed) it measures whether stage 1 learned
+skills that transfer to the target task.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from lerobot.envs.utils import preprocess_observation
+
+from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
+from lerobot_skillret.kitchen.gym_env import KitchenEnv
+from lerobot_skillret.kitchen.observations import load_kitchen_meta
+from lerobot_skillret.kitchen.tasks import get_task
+from lerobot_skillret.pipeline.heldout import skill_starts
+from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
+
+
+@dataclass
+class OracleEpisode:
+    episode_index: int
+    length: int
+    success: bool
+    unmet: list[str]
+
+
+@torch.no_grad()
+def oracle_episode(
+    policy: SkillRetPolicy,
+    env: KitchenEnv,
+    sampler: WindowSampler,
+    first: int,
+    length: int,
+    initial_state: np.ndarray,
+    slack: float,
+) -> tuple[bool, list[str]]:
+    """Oracle-skill rollout of the demonstration whose frames start at global index `first`; it may run `slack`
+    times the demonstration's length (past its end it keeps executing the last window's skill)."""
+    observation, _ = env.reset(options={"initial_state": initial_state})
+    horizon, success = policy.config.horizon, False
+    policy.reset()
+    for t in range(int(length * slack)):
+        batch = preprocess_observation({key: value[None] for key, value in observation.items()})
+        if t % horizon == 0:
+            anchor = torch.tensor([first + min(t, length - 1)])
+            policy.execute_skill(policy.encode_skill(sampler.gather(anchor))[0])
+        observation, _, _, _, info = env.step(policy.select_action(batch)[0].numpy())
+        if success := info["is_success"]:
+            break
+    return success, env.unmet_goals()
+
+
+def oracle_success(
+    checkpoint: Path, demos: Path, task: str, episodes: int | None = None, slack: float = 1.5, log=print
+) -> dict:
+    """Oracle-skill success of `checkpoint` on the first `episodes` demonstrations of the dataset at `demos`, and
+    the teacher-forced oracle action error on all of them (squared error summed over action dimensions, in the
+    decoder's [-1, 1] units, at every window where a rollout picks a skill)."""
+    policy = SkillRetPolicy.from_pretrained(checkpoint).eval()
+    config = policy.config
+    columns = EpisodeColumns.from_dataset(f"local/{demos.name}", demos)
+    sampler = WindowSampler(columns, history=config.history, horizon=config.horizon)
+    error = float(policy.imitation_error(sampler.gather(skill_starts(columns, config.horizon)))["oracle"].mean())
+    meta = load_kitchen_meta(demos)["episodes"][:episodes]
+    episode_index = columns.td["episode_index"].as_subclass(torch.Tensor).numpy()
+    episode_end = columns.td["episode_end"].as_subclass(torch.Tensor).numpy()
+    env, rows = KitchenEnv(task=task), []
+    try:
+        for entry in meta:
+            first = int(np.flatnonzero(episode_index == entry["episode_index"])[0])
+            length = int(episode_end[first]) - first
+            success, unmet = oracle_episode(
+                policy, env, sampler, first, length, np.asarray(entry["initial_state"]), slack
+            )
+            rows.append(OracleEpisode(entry["episode_index"], length, success, unmet))
+            log(f"  demo {entry['episode_index']}: {length} steps, success={success}, unmet={unmet}")
+    finally:
+        env.close()
+    goals = len(get_task(task).goals)
+    return {
+        "episodes": len(rows),
+        "success": sum(r.success for r in rows) / max(len(rows), 1),
+        "goals_met": 1 - sum(len(r.unmet) for r in rows) / max(len(rows) * goals, 1),
+        "oracle_action_error": error,
+        "failures": {r.episode_index: r.unmet for r in rows if not r.success},
+    }
