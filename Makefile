@@ -32,4 +32,4 @@ test: install
 	MUJOCO_GL=egl $(BIN)/python -m pytest -q tests
 
 lint: install
-	$(BIN)/ruff check . && $(BIN)/ruff format --check .
+	$(BIN)/ruff check . && $(BIN)/ruff format --check . && $(BIN)/lint-imports

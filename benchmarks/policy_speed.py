@@ -29,9 +29,9 @@ from lerobot.policies.act.modeling_act import ACTPolicy
 from lerobot.utils.feature_utils import dataset_to_policy_features
 
 from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
+from lerobot_skillret.data.retrieval_file import RetrievalResult
 from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
 from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
-from lerobot_skillret.retrieval.schema import RetrievalResult
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from synthetic import make_synthetic_dataset

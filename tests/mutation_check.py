@@ -112,7 +112,7 @@ MUTANTS = [
     Mutant(
         "retrieve_farthest",
         "retrieval keeps the farthest candidates instead of the nearest",
-        PKG / "retrieval/select.py",
+        PKG / "retrieval/kernels.py",
         "rows = torch.topk(value, count, largest=False, sorted=False).indices",
         "rows = torch.topk(value, count, largest=True, sorted=False).indices",
         tuple(RETRIEVAL_TESTS),
@@ -120,7 +120,7 @@ MUTANTS = [
     Mutant(
         "retrieval_count",
         "K rounded down instead of round(r * candidates)",
-        PKG / "retrieval/select.py",
+        PKG / "retrieval/api.py",
         "return round(fraction * num_candidates)",
         "return int(fraction * num_candidates)",
         tuple(RETRIEVAL_TESTS),
@@ -128,7 +128,7 @@ MUTANTS = [
     Mutant(
         "exact_band",
         "rows near the cut not re-scored exactly (float32 set instead of float64's)",
-        PKG / "retrieval/select.py",
+        PKG / "retrieval/kernels.py",
         "band = torch.nonzero(~sure_in & (low <= cut_high)).squeeze(1)",
         "band = torch.nonzero(~sure_in & (low < cut_low)).squeeze(1)",
         tuple(RETRIEVAL_TESTS),

@@ -113,8 +113,8 @@ def batch_at(config: SkillRetConfig, repo_id: str, root: Path, indices: list[int
 def write_retrieval(path: Path, stage1_dir: Path, prior_root: Path, target_root: Path, indices: list[int]) -> Path:
     """A retrieval file as `skillret-retrieve` writes it, selecting the prior windows at `indices`."""
     from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
+    from lerobot_skillret.data.retrieval_file import RetrievalResult
     from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
-    from lerobot_skillret.retrieval.schema import RetrievalResult
 
     stage1 = SkillRetPolicy.from_pretrained(stage1_dir)
     sampler = WindowSampler(EpisodeColumns.from_dataset(PRIOR_REPO, prior_root), history=HISTORY, horizon=HORIZON)

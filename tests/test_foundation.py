@@ -90,3 +90,13 @@ def test_defaults_are_the_papers() -> None:
 def test_bad_values_name_the_field(field: str, value: object) -> None:
     with pytest.raises(ValueError, match=f"`{field}`"):
         SkillRetConfig(device="cpu", **{field: value})
+
+
+def test_stages_import_one_way_without_cycles() -> None:
+    """The import-linter contracts in pyproject.toml (also run by `make lint`): data <- policy <- retrieval <-
+    pipeline, the method never imports the kitchen, no module cycles."""
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run(
+        [str(Path(sys.executable).parent / "lint-imports"), "--no-cache"], cwd=root, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stdout[-3000:]

@@ -8,6 +8,7 @@ import os
 import numpy as np
 import pytest
 
+from lerobot_skillret.data.labels import load_label_names
 from lerobot_skillret.kitchen import generate as G
 from lerobot_skillret.kitchen import observations as O
 from lerobot_skillret.kitchen.primitives import PRIMITIVES
@@ -58,7 +59,7 @@ def test_demos_succeed_and_play_is_labelled(datasets):
     assert all(ep["success"] for ep in demos["episodes"])
     assert _load(datasets / "demos").meta.tasks.index[0] == TASKS["breakfast"].description
     play = O.load_kitchen_meta(datasets / "play")
-    assert play["primitive_names"] == list(PRIMITIVES) and play["episodes"][0]["length"] == 120
+    assert load_label_names(datasets / "play") == list(PRIMITIVES) and play["episodes"][0]["length"] == 120
     labels = np.asarray(_load(datasets / "play").hf_dataset[O.PRIMITIVE_KEY]).reshape(-1)
     assert labels.min() >= 0 and labels.max() < len(PRIMITIVES)
     counted = {name: int((labels == i).sum()) for i, name in enumerate(PRIMITIVES)}

@@ -66,6 +66,38 @@ def test_in_drawer_follows_the_tray():
     assert not P.in_drawer("block_red")(scene)
 
 
+class FakeEef:
+    """Just the gripper: at the origin with a given orientation matrix."""
+
+    def __init__(self, mat: np.ndarray):
+        self.mat = mat
+
+    def eef_pos(self):
+        return np.zeros(3)
+
+    def eef_mat(self):
+        return self.mat
+
+    def gripper_qpos(self):
+        return np.zeros(2)
+
+
+def test_rotation_conventions():
+    """Quaternions are (w, x, y, z) with w >= 0, yaw is the heading, and the servo turns the gripper back to DOWN."""
+    from scipy.spatial.transform import Rotation
+
+    from lerobot_skillret.kitchen.observations import agent_pos
+    from lerobot_skillret.kitchen.primitives import DOWN, ROT_SCALE, Driver
+
+    assert P.yaw(np.array([np.cos(0.35), 0.0, 0.0, np.sin(0.35)])) == pytest.approx(0.7)
+    # 0.1 rad about world x off DOWN: scipy's (x, y, z, w) has w < 0 here, so this checks order and sign.
+    eef = FakeEef(Rotation.from_rotvec([0.1, 0.0, 0.0]).as_matrix() @ DOWN)
+    quat = agent_pos(eef)[3:7]
+    assert quat[0] > 0 and np.allclose(Rotation.from_quat(quat, scalar_first=True).as_matrix(), eef.mat, atol=1e-6)
+    action = Driver(eef, np.random.default_rng(0)).servo_action(np.zeros(3))
+    np.testing.assert_allclose(action[3:6] * ROT_SCALE, [-0.1, 0.0, 0.0], atol=1e-12)
+
+
 def test_registry_is_consistent():
     assert {"breakfast", "cook", "setup_pan", "setting_up", "cleaning_up"} <= set(TASKS)
     for task in TASKS.values():

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_skillret.retrieval.schema import RetrievalResult
+from lerobot_skillret.data.retrieval_file import RetrievalResult
 
 REPO = Path(__file__).resolve().parents[1]
 CLI = str(Path(sys.executable).parent / "skillret-pipeline")
@@ -50,9 +50,9 @@ def test_smoke_pipeline_survives_a_kill_and_produces_every_artifact(tmp_path: Pa
     assert not list(out.rglob("*.partial")), "a partial artifact was left behind"
     ckpt = out / "skills" / "prior_seed0" / "checkpoints" / "last" / "pretrained_model"
     assert (ckpt / "model.safetensors").is_file()
-    retrieved = RetrievalResult.load(out / "retrieval" / "breakfast_default_seed0" / "retrieval.safetensors")
+    retrieved = RetrievalResult.load(out / "retrieval" / "breakfast_skillret_seed0" / "retrieval.safetensors")
     assert len(retrieved) > 0
-    report = out / "retrieval" / "breakfast_default_seed0" / "report"
+    report = out / "retrieval" / "breakfast_skillret_seed0" / "report"
     assert {"summary.json", "distance_histogram.png", "latents_pca.png"} <= {p.name for p in report.iterdir()}
     for step in (2, 4):
         info = json.loads(

@@ -185,15 +185,29 @@ def test_plan_wires_each_ablation(tmp_path: Path) -> None:
     retrieval = RetrievalSpec(args={"fraction": 0.05, "num-prior": 1000})
     plan = Plan(PipelineConfig(output_dir=str(tmp_path), tasks=["cook"], methods=methods, retrieval=retrieval))
     cmds = {m: " ".join(plan.train_stage(Cell(m, "cook", 0)).command) for m in methods}
-    assert "--policy.retrieval_path=" in cmds["skillret"] and "cook_default_seed0" in cmds["skillret"]
-    assert "cook_random_seed0" in cmds["random_retrieval"]
+    assert "--policy.retrieval_path=" in cmds["skillret"] and "cook_skillret_seed0" in cmds["skillret"]
+    assert "cook_random_retrieval_seed0" in cmds["random_retrieval"]
     assert "--policy.use_retrieval=false" in cmds["no_retrieval"] and "prior_seed0" in cmds["no_retrieval"]
     assert "target_cook_seed0" in cmds["no_prior"] and "--policy.prior_repo_id=null" in cmds["no_prior"]
-    assert "--ablation=random" in " ".join(plan.retrieval_stage("cook", "random", 0).command)
-    assert "cook_all_seed0" in cmds["all_retrieval"]
-    all_cmd = plan.retrieval_stage("cook", "all", 0).command
+    assert "--ablation=random" in " ".join(plan.retrieval_stage("cook", "random_retrieval", 0).command)
+    assert "cook_all_retrieval_seed0" in cmds["all_retrieval"]
+    all_cmd = plan.retrieval_stage("cook", "all_retrieval", 0).command
     assert "--ablation=all" in all_cmd and not any(a.startswith(("--fraction", "--num-prior")) for a in all_cmd)
-    assert "--fraction=0.05" in plan.retrieval_stage("cook", "default", 0).command
+    assert "--fraction=0.05" in plan.retrieval_stage("cook", "skillret", 0).command
+    assert not any(a.startswith("--ablation") for a in plan.retrieval_stage("cook", "skillret", 0).command)
+
+
+def test_a_method_is_one_registry_entry(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A new row of the table (here: the paper's 2 % retrieval) needs nothing but its `Method` entry."""
+    from lerobot_skillret.pipeline import methods
+
+    entry = methods.Method("r2_retrieval", "skills from the prior, 2 % retrieved", "prior", {"ablation": "r2"})
+    monkeypatch.setitem(methods.METHODS, entry.name, entry)
+    plan = Plan(PipelineConfig(output_dir=str(tmp_path), tasks=["cook"], methods=["r2_retrieval"]))
+    cell = Cell("r2_retrieval", "cook", 0)
+    assert "--ablation=r2" in plan.retrieval_stage("cook", cell.method, 0).command
+    assert f"--policy.retrieval_path={plan.retrieval_path('cook', cell.method, 0)}" in plan.train_stage(cell).command
+    assert plan.needs_prior() and plan.retrieval_summary(cell) is not None
 
 
 def _cell(root: Path, method: str, task: str, seed: int, success: float, subgoals: float | None = None) -> None:

@@ -16,11 +16,11 @@ from policy_fixtures import PRIOR_REPO, TARGET_REPO, build_policy, tiny_config
 from synthetic import NUM_PRIMITIVES, make_synthetic_dataset
 
 from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
+from lerobot_skillret.data.retrieval_file import RetrievalResult
 from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
 from lerobot_skillret.retrieval.api import retrieve
 from lerobot_skillret.retrieval.cli import main
 from lerobot_skillret.retrieval.report import retrieval_precision
-from lerobot_skillret.retrieval.schema import RetrievalResult
 from lerobot_skillret.retrieval.settings import RetrievalSettings
 
 NAMES = [f"skill_{i}" for i in range(NUM_PRIMITIVES)]
@@ -104,7 +104,6 @@ def test_cli_writes_a_consistent_retrieval_file_and_report(setup, tmp_path):
         (["--mode", "all"], lambda n: n),
         (["--ablation", "random", "--seed", "3"], lambda n: round(0.1 * n)),
         (["--fraction", "0.5", "--metric", "kl", "--num-prior", "60", "--num-target", "20"], lambda n: 30),
-        (["--nms-radius", "2", "--target-quota", "3"], lambda n: round(0.1 * n)),
     ],
 )
 def test_modes_and_options(setup, tmp_path, extra, expected):
@@ -205,10 +204,9 @@ def test_cli_options_map_onto_settings():
     assert parse() == RetrievalSettings()
     assert parse("--ablation=random", "--seed=3") == RetrievalSettings(mode="random", seed=3)
     assert parse("--ablation", "large", "--fraction", "0.05").num_prior == "all"
-    flags = parse("--importance", "--exact=false", "--num-prior", "250_000", "--nms-radius", "5", "--target-quota", "2")
-    assert (flags.importance, flags.exact, flags.num_prior, flags.nms_radius, flags.target_quota) == (
-        True, False, 250_000, 5, 2
-    )  # fmt: skip
+    assert parse("--ablation", "nearest") == parse()
+    flags = parse("--exact=false", "--num-prior", "250_000")
+    assert (flags.exact, flags.num_prior) == (False, 250_000)
 
 
 def test_a_kill_during_the_report_leaves_neither_report_nor_file(setup, tmp_path):

@@ -5,11 +5,11 @@ from __future__ import annotations
 import pytest
 import torch
 
-from lerobot_skillret.retrieval.kernels import NearestTarget, Scores
-from lerobot_skillret.retrieval.select import retrieval_count, smallest
+from lerobot_skillret.retrieval.api import retrieval_count
+from lerobot_skillret.retrieval.kernels import NearestTarget, Scores, smallest
 
 
-def brute_force(prior_mean, target_mean, metric, prior_log_var=None, target_log_var=None, neighbors=1):
+def brute_force(prior_mean, target_mean, metric, prior_log_var=None, target_log_var=None):
     """float64 reference written from the definitions, with the full N x M matrix (small inputs only)."""
     p, q = prior_mean.double()[:, None, :], target_mean.double()[None, :, :]
     if metric == "l2":
@@ -21,8 +21,8 @@ def brute_force(prior_mean, target_mean, metric, prior_log_var=None, target_log_
             return 0.5 * (torch.log(v_b / v_a) + (v_a + (m_a - m_b) ** 2) / v_b - 1.0).sum(-1)
 
         matrix = 0.5 * (kl(p, v1, q, v2) + kl(q, v2, p, v1))
-    values, index = torch.topk(matrix, neighbors, dim=1, largest=False, sorted=True)
-    return values[:, -1], index[:, 0]
+    values, index = torch.min(matrix, dim=1)
+    return values, index
 
 
 def reference_selection(values, count):
@@ -51,6 +51,7 @@ def test_selection_equals_float64_brute_force(metric, chunk_size):
     assert torch.all(error <= scores.margin), "the per-row error bound must hold"
     torch.testing.assert_close(scores.value.double(), ref_values, rtol=1e-4, atol=1e-4)
     assert (scores.nearest == ref_nearest).float().mean() > 0.99
+    assert engine.score(prior_mean, prior_log_var if metric == "kl" else None, chunk_size=chunk_size).nearest is None
 
     for fraction in (0.02, 0.1, 0.5, 0.9, 1.0):
         count = retrieval_count(fraction, 1500)
@@ -81,31 +82,6 @@ def test_refinement_fixes_float32_near_ties():
     assert set(rows.tolist()) == expected
 
 
-@pytest.mark.parametrize("metric", ["l2", "kl"])
-def test_kth_neighbour_and_exclusion(metric):
-    generator = torch.Generator().manual_seed(5)
-    prior_mean, prior_log_var = random_latents(400, 6, generator)
-    target_mean, target_log_var = random_latents(30, 6, generator)
-    log_vars = (prior_log_var, target_log_var) if metric == "kl" else (None, None)
-    engine = NearestTarget(target_mean, log_vars[1], metric=metric, neighbors=3)
-    scores = engine.score(prior_mean, log_vars[0], chunk_size=50, with_nearest=True)
-    assert engine.score(prior_mean, log_vars[0]).nearest is None
-    ref_values, ref_nearest = brute_force(prior_mean, target_mean, metric, prior_log_var, target_log_var, 3)
-    torch.testing.assert_close(scores.value.double(), ref_values, rtol=1e-4, atol=1e-4)
-    assert torch.equal(scores.nearest, ref_nearest)
-
-    # A prior row that IS target column j must not match itself when j is excluded.
-    prior_with_copies = torch.cat([target_mean[:5], prior_mean[:20]])
-    exclude = torch.tensor([0, 1, 2, 3, 4] + [-1] * 20)
-    log_var_copies = torch.cat([target_log_var[:5], prior_log_var[:20]]) if metric == "kl" else None
-    nearest_one = NearestTarget(target_mean, log_vars[1], metric=metric)
-    excluded = nearest_one.score(prior_with_copies, log_var_copies, chunk_size=4, exclude=exclude, with_nearest=True)
-    assert torch.all(excluded.value[:5] > 1e-3)
-    assert not torch.any(excluded.nearest[:5] == torch.arange(5))
-    exact = nearest_one.exact(prior_with_copies, log_var_copies, torch.arange(25), exclude)
-    torch.testing.assert_close(exact, excluded.value.double(), rtol=1e-4, atol=1e-4)
-
-
 def test_bad_inputs_have_clear_errors():
     target = torch.randn(10, 8)
     with pytest.raises(ValueError, match="target set is empty"):
@@ -118,8 +94,6 @@ def test_bad_inputs_have_clear_errors():
         NearestTarget(target, metric="cosine")
     with pytest.raises(ValueError, match=r"\[num_windows, latent_dim\]"):
         NearestTarget(torch.randn(10))
-    with pytest.raises(ValueError, match="neighbors=11"):
-        NearestTarget(target, neighbors=11)
     for bad in (float("nan"), float("inf"), -float("inf")):
         prior = torch.zeros(3, 8)
         prior[1, 2] = bad
@@ -131,10 +105,6 @@ def test_bad_inputs_have_clear_errors():
         NearestTarget(target, torch.full((10, 8), float("inf")), metric="kl")
     with pytest.raises(ValueError, match="chunk_size"):
         NearestTarget(target).score(torch.randn(5, 8), chunk_size=0)
-    with pytest.raises(ValueError, match=r"r=1.5 must be in \[0, 1\]"):
-        retrieval_count(1.5, 100)
-    with pytest.raises(ValueError, match=r"r=-0.1"):
-        retrieval_count(-0.1, 100)
     scores = NearestTarget(target).score(torch.randn(5, 8))
     with pytest.raises(ValueError, match="Cannot select 6 of 5"):
         smallest(scores, 6)

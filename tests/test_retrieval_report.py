@@ -7,9 +7,9 @@ import json
 import pytest
 import torch
 
-from lerobot_skillret.retrieval.engine import Selection
+from lerobot_skillret.data.retrieval_file import RetrievalResult
+from lerobot_skillret.retrieval.kernels import Selection
 from lerobot_skillret.retrieval.report import QUANTILES, ReportInputs, _quantiles, label_names, write_report
-from lerobot_skillret.retrieval.schema import RetrievalResult
 
 
 def inputs_and_result():

@@ -1,4 +1,4 @@
-"""Retrieval modes (A.4) and the options beyond the paper, on latents (no checkpoint needed)."""
+"""Retrieval modes (A.4) and settings, on latents (no checkpoint needed)."""
 
 from __future__ import annotations
 
@@ -6,20 +6,13 @@ import pytest
 import torch
 
 from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
-from lerobot_skillret.retrieval.engine import select_windows
-from lerobot_skillret.retrieval.settings import ABLATIONS, RetrievalSettings, ablation
+from lerobot_skillret.retrieval.api import select_windows
+from lerobot_skillret.retrieval.settings import ABLATIONS, MODES, RetrievalSettings, ablation
 
 
 def latents(num_prior=2000, num_target=60, dim=8, seed=0):
     generator = torch.Generator().manual_seed(seed)
     return torch.randn(num_prior, dim, generator=generator), torch.randn(num_target, dim, generator=generator)
-
-
-def episodes(num_frames, length):
-    """Per-frame episode bounds for consecutive episodes of `length` frames."""
-    frames = torch.arange(num_frames)
-    start = (frames // length) * length
-    return frames, start, torch.clamp(start + length, max=num_frames)
 
 
 def test_nearest_mode_is_the_exact_top_fraction():
@@ -57,64 +50,6 @@ def test_random_mode_is_seeded_and_worse_than_nearest():
     assert random_a.distance[random_a.retrieved].mean() > 1.2 * nearest.distance[nearest.retrieved].mean()
 
 
-def reference_greedy(order, count, anchors, start, nearest, radius, quota):
-    """Direct transcription of the rules: quadratic, obviously right."""
-    kept = []
-    for i in order.tolist():
-        if radius and any(start[i] == start[j] and abs(int(anchors[i]) - int(anchors[j])) <= radius for j in kept):
-            continue
-        if quota is not None and sum(int(nearest[j]) == int(nearest[i]) for j in kept) >= quota:
-            continue
-        kept.append(i)
-        if len(kept) == count:
-            break
-    return kept
-
-
-@pytest.mark.parametrize(("radius", "quota"), [(3, None), (0, 2), (5, 4)])
-def test_suppression_and_quota_match_the_reference_greedy(radius, quota):
-    prior, target = latents(num_prior=600, num_target=20)
-    anchors, start, end = episodes(600, 37)
-    settings = RetrievalSettings(fraction=0.2, nms_radius=radius, target_quota=quota).resolve()
-    selection = select_windows(prior, target, settings, anchors=anchors, episode_start=start, episode_end=end)
-    order = torch.sort(selection.distance, stable=True).indices
-    nearest = torch.cdist(prior.double(), target.double()).argmin(1)
-    expected = reference_greedy(order, 120, anchors, start, nearest, radius, quota)
-    assert sorted(selection.retrieved.tolist()) == sorted(expected)
-    assert len(selection.retrieved) == min(120, len(expected))
-    picked = selection.retrieved
-    if radius:
-        same_episode = start[picked][:, None] == start[picked][None, :]
-        close = (anchors[picked][:, None] - anchors[picked][None, :]).abs() <= radius
-        assert not torch.any(same_episode & close & ~torch.eye(len(picked), dtype=torch.bool))
-    if quota is not None:
-        assert torch.equal(selection.nearest, nearest[picked])
-        assert torch.bincount(selection.nearest).max() <= quota
-
-
-def test_suppression_keeps_the_count_when_it_can():
-    prior, target = latents(num_prior=1000, num_target=10)
-    anchors, start, end = episodes(1000, 100)
-    settings = RetrievalSettings(fraction=0.1, nms_radius=2).resolve()
-    selection = select_windows(prior, target, settings, anchors=anchors, episode_start=start, episode_end=end)
-    assert len(selection.retrieved) == 100
-
-
-def test_importance_weighting_prefers_target_like_windows_that_are_rare_in_the_prior():
-    """Targets sit half on a behaviour that fills 90% of the prior, half on one that fills 10%. Plain distance
-    retrieves mostly the common behaviour; the density ratio shifts the budget towards the rare one."""
-    generator = torch.Generator().manual_seed(0)
-    common = torch.randn(1800, 4, generator=generator)
-    rare = torch.randn(200, 4, generator=generator) + torch.tensor([6.0, 0, 0, 0])
-    prior = torch.cat([common, rare])
-    target = torch.cat([common[:30], rare[:30]]) + 0.05 * torch.randn(60, 4, generator=generator)
-    plain = select_windows(prior, target, RetrievalSettings(fraction=0.1).resolve())
-    weighted = select_windows(prior, target, RetrievalSettings(fraction=0.1, importance=True).resolve())
-    rare_share = lambda s: float((s.retrieved >= 1800).float().mean())  # noqa: E731
-    assert rare_share(weighted) > rare_share(plain) + 0.15
-    assert weighted.score is not None and len(weighted.retrieved) == 200
-
-
 def test_kl_metric_through_select_windows():
     prior, target = latents(num_prior=500, num_target=30)
     generator = torch.Generator().manual_seed(9)
@@ -140,7 +75,9 @@ def test_settings_defaults_come_from_the_checkpoint_config():
     assert (paper.fraction, paper.metric, paper.num_prior, paper.num_target) == (0.1, "l2", 250_000, 2_500)
     every = RetrievalSettings(mode="all").resolve(config)
     assert (every.fraction, every.num_prior) == (1.0, "all")
-    assert set(ABLATIONS) == {"ours", "none", "all", "random", "r2", "r50", "r90", "large"}
+    assert set(ABLATIONS) == {"nearest", "none", "all", "random", "r2", "r50", "r90", "large"}
+    assert ablation("nearest") == RetrievalSettings()
+    assert all(ablation(mode).mode == mode for mode in MODES)  # a row that is a mode has the mode's name
     assert ablation("large").resolve().num_prior == "all"
     assert ablation("r90").resolve().fraction == 0.9
 
@@ -150,13 +87,11 @@ def test_settings_defaults_come_from_the_checkpoint_config():
     [
         ({"fraction": 1.5}, r"`fraction`=1.5 is invalid"),
         ({"fraction": -0.1}, r"`fraction`=-0.1 is invalid"),
+        ({"fraction": 0.0}, r"`fraction`=0.0 is invalid: .* in \(0, 1\]"),
         ({"mode": "best"}, "choose one of"),
         ({"metric": "cosine"}, "choose one of"),
         ({"num_prior": 0}, "N must be >= 1"),
         ({"num_target": 0}, "M must be >= 1"),
-        ({"nms_radius": -1}, "suppression radius"),
-        ({"target_quota": 0}, "quota is >= 1"),
-        ({"mode": "random", "importance": True}, "needs mode 'nearest'"),
         ({"mode": "all", "fraction": 0.5}, "mode 'all' retrieves every prior window"),
     ],
 )

@@ -3,8 +3,8 @@
 Episodes are simulated in worker processes (seeded per episode, so the output depends only on --seed and the
 sizes, not on --workers) and written by this process into a temporary folder renamed into place at the end:
 an interrupted run leaves no dataset behind. Besides the LeRobot files the dataset root holds
-`meta/kitchen.json`: primitive names (for the `primitive_index` column), frames per primitive, per-episode task,
-seed, success and initial MuJoCo state (for exact replays), and the generator settings.
+`meta/primitives.json` (the names of the `primitive_index` values) and `meta/kitchen.json`: frames per primitive,
+per-episode task, seed, success and initial MuJoCo state (for exact replays), and the generator settings.
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from lerobot_skillret.data.labels import write_label_names
 from lerobot_skillret.files import staged_dir
 from lerobot_skillret.kitchen import observations as O
 from lerobot_skillret.kitchen.collect import Episode, EpisodeJob, run_episode
@@ -197,13 +198,13 @@ def generate(args: argparse.Namespace) -> Path:
             "task": args.task,
             "seed": args.seed,
             "cameras": list(args.cameras),
-            "primitive_names": list(PRIMITIVES),
             "primitive_frames": {name: primitive_frames[name] for name in PRIMITIVES},
             "attempts": attempts,
             "failed_attempts": failures,
             "episodes": episodes_meta,
         }
         (tmp / O.KITCHEN_META).write_text(json.dumps(meta))
+        write_label_names(tmp, PRIMITIVES)
     if args.kind == "demos":
         print(f"{args.task}: kept {len(episodes_meta)} successful demos of {attempts} attempts ({failures} failed)")
     total = max(sum(primitive_frames.values()), 1)

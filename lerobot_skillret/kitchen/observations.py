@@ -5,7 +5,8 @@
 - `environment_state` / `observation.environment_state` (80): for every movable (layout.MOVABLES order) its
   position (3) and quaternion (w, x, y, z) (4), then the drawer slide, light switch and burner switch joints.
 - `pixels/<camera>` / `observation.images.<camera>` (H, W, 3) uint8, optional: "agentview", "eye_in_hand".
-Import-light (numpy + layout only) so the EnvConfig can derive its features here without robosuite.
+Import-light (numpy and this package; scipy only once a scene is observed) so the EnvConfig can derive its
+features here without robosuite.
 """
 
 from __future__ import annotations
@@ -15,10 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
+from lerobot_skillret.data.labels import PRIMITIVE_KEY
 from lerobot_skillret.kitchen import layout
 
 CAMERAS = ("agentview", "eye_in_hand")
 DEFAULT_IMAGE_SIZE = 84
+# The fixtures' MuJoCo joints (scene.py reads and resets them), the last entries of `environment_state`.
 FIXTURE_JOINTS = ("drawer_slide", "light_switch_joint", "burner_switch_joint")
 STATE_NAMES = ["eef_x", "eef_y", "eef_z", "eef_qw", "eef_qx", "eef_qy", "eef_qz", "finger_left", "finger_right"]
 ENV_STATE_NAMES = [f"{obj}_{c}" for obj in layout.MOVABLES for c in ("x", "y", "z", "qw", "qx", "qy", "qz")] + list(
@@ -27,7 +30,6 @@ ENV_STATE_NAMES = [f"{obj}_{c}" for obj in layout.MOVABLES for c in ("x", "y", "
 ACTION_NAMES = ["dx", "dy", "dz", "dax", "day", "daz", "gripper"]
 # env observation key -> LeRobot dataset / policy feature key
 ENV_TO_DATASET = {"agent_pos": "observation.state", "environment_state": "observation.environment_state"}
-PRIMITIVE_KEY = "primitive_index"
 KITCHEN_META = "meta/kitchen.json"  # per dataset: primitive names, episode seeds, tasks and initial states
 
 
@@ -43,21 +45,13 @@ def check_cameras(cameras) -> tuple[str, ...]:
     return cameras
 
 
-def _quat_wxyz_from_mat(m: np.ndarray) -> np.ndarray:
-    w = np.sqrt(max(0.0, 1.0 + m[0, 0] + m[1, 1] + m[2, 2])) / 2
-    x = np.sqrt(max(0.0, 1.0 + m[0, 0] - m[1, 1] - m[2, 2])) / 2
-    y = np.sqrt(max(0.0, 1.0 - m[0, 0] + m[1, 1] - m[2, 2])) / 2
-    z = np.sqrt(max(0.0, 1.0 - m[0, 0] - m[1, 1] + m[2, 2])) / 2
-    x = np.copysign(x, m[2, 1] - m[1, 2])
-    y = np.copysign(y, m[0, 2] - m[2, 0])
-    z = np.copysign(z, m[1, 0] - m[0, 1])
-    return np.array([w, x, y, z])
-
-
 def agent_pos(scene) -> np.ndarray:
-    return np.concatenate([scene.eef_pos(), _quat_wxyz_from_mat(scene.eef_mat()), scene.gripper_qpos()]).astype(
-        np.float32
-    )
+    # Imported here, not at the top: a scene means robosuite (which imports scipy) is loaded already, and the
+    # EnvConfig imports this module at plugin registration without a scene.
+    from scipy.spatial.transform import Rotation
+
+    quat = Rotation.from_matrix(scene.eef_mat()).as_quat(canonical=True, scalar_first=True)  # (w, x, y, z), w >= 0
+    return np.concatenate([scene.eef_pos(), quat, scene.gripper_qpos()]).astype(np.float32)
 
 
 def environment_state(scene) -> np.ndarray:

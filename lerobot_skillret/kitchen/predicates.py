@@ -37,7 +37,12 @@ DRAWER_OPEN_BELOW = -0.15  # slide joint below this = open (0 = closed, -0.2 = f
 DRAWER_CLOSED_ABOVE = -0.015
 
 
-def _yaw(quat_wxyz: np.ndarray) -> float:
+def yaw(quat_wxyz: np.ndarray) -> float:
+    """Heading (rad) of a (w, x, y, z) quaternion: the first angle of its intrinsic ZYX Euler angles.
+
+    The closed form, not scipy's `Rotation.as_euler("ZYX")` (equal to ~1e-14): this module stays import-light (the
+    tasks and the EnvConfig import it at plugin registration) and predicates run every env step.
+    """
     w, x, y, z = quat_wxyz
     return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
 
@@ -49,7 +54,8 @@ def _upright(scene: SceneState, obj: str) -> bool:
 
 def _local_xy(scene: SceneState, obj: str, frame: str) -> np.ndarray:
     d = scene.body_pos(obj)[:2] - scene.body_pos(frame)[:2]
-    c, s = np.cos(_yaw(scene.body_quat(frame))), np.sin(_yaw(scene.body_quat(frame)))
+    heading = yaw(scene.body_quat(frame))
+    c, s = np.cos(heading), np.sin(heading)
     return np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])
 
 

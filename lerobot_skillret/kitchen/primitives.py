@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from lerobot_skillret.kitchen import layout
 from lerobot_skillret.kitchen import predicates as P
@@ -31,15 +32,6 @@ RETRIES = 2
 
 class OutOfSteps(Exception):
     """The driver's step budget is spent (episode length reached)."""
-
-
-def _rotvec(r: np.ndarray) -> np.ndarray:
-    """Axis-angle vector of a rotation matrix (small-angle safe)."""
-    angle = np.arccos(np.clip((np.trace(r) - 1) / 2, -1.0, 1.0))
-    axis = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
-    if angle < 1e-6:
-        return axis / 2
-    return axis * angle / (2 * np.sin(angle))
 
 
 class Driver:
@@ -76,7 +68,7 @@ class Driver:
 
     def servo_action(self, target: np.ndarray, speed: float = 1.0) -> np.ndarray:
         err = target - self.scene.eef_pos()
-        rot = _rotvec(DOWN @ self.scene.eef_mat().T)
+        rot = Rotation.from_matrix(DOWN @ self.scene.eef_mat().T).as_rotvec()  # orientation error, axis-angle
         return np.concatenate([np.clip(err / POS_SCALE, -speed, speed), np.clip(rot / ROT_SCALE, -1, 1), [self.grip]])
 
     def move(self, target, tol: float = 0.008, max_steps: int = 60, jitter: bool = True, speed: float = 1.0) -> bool:
@@ -104,7 +96,7 @@ class Driver:
 
 # ----- geometry helpers -----
 def _handle_world(scene, vessel: str) -> np.ndarray:
-    pos, yaw = scene.body_pos(vessel), P._yaw(scene.body_quat(vessel))
+    pos, yaw = scene.body_pos(vessel), P.yaw(scene.body_quat(vessel))
     hx, hy, hz = layout.VESSELS[vessel]["handle"]
     c, s = np.cos(yaw), np.sin(yaw)
     return pos + np.array([c * hx - s * hy, s * hx + c * hy, hz])
@@ -133,7 +125,7 @@ def place_target(scene, obj: str, region: str, rng: np.random.Generator) -> np.n
             slots, yaw = layout.DRAWER_SLOTS, 0.0
         else:
             centre = scene.body_pos(region) + np.array([0, 0, layout.VESSELS[region]["floor"][0]])
-            slots, yaw = layout.VESSELS[region]["slots"], P._yaw(scene.body_quat(region))
+            slots, yaw = layout.VESSELS[region]["slots"], P.yaw(scene.body_quat(region))
         points = [centre + np.array([np.cos(yaw) * dx, np.sin(yaw) * dx, 0.0]) for dx in slots]
         # The free slot farthest from every other object.
         best = max(points, key=lambda q: min(np.linalg.norm(scene.body_pos(n)[:2] - q[:2]) for n in others))

@@ -1,7 +1,7 @@
 """Camera images of the kitchen scene, fast on a CPU-only machine (the one image path for data and envs).
 
-Uses `mujoco.Renderer` directly with anti-aliasing, shadows and reflections off and an offscreen buffer no larger
-than needed; it returns images upright (row 0 = top), so no flip is needed anywhere else.
+Uses `mujoco.Renderer` directly with anti-aliasing, shadows, reflections and the skybox off and an offscreen buffer
+no larger than needed; it returns images upright (row 0 = top), so no flip is needed anywhere else.
 """
 
 from __future__ import annotations
@@ -12,6 +12,11 @@ import numpy as np
 from lerobot_skillret.kitchen.observations import CAMERAS
 
 _CAMERA_IDS = {"agentview": "agentview", "eye_in_hand": "robot0_eye_in_hand"}
+_OFF_FLAGS = (  # off for speed (see above)
+    mujoco.mjtRndFlag.mjRND_SHADOW,
+    mujoco.mjtRndFlag.mjRND_REFLECTION,
+    mujoco.mjtRndFlag.mjRND_SKYBOX,
+)
 
 
 class CameraRenderer:
@@ -22,12 +27,6 @@ class CameraRenderer:
         model.vis.global_.offheight = max(size, 64)
         self.scene, self.size = scene, size
         self.renderer = mujoco.Renderer(model, height=size, width=size)
-        for flag in (
-            mujoco.mjtRndFlag.mjRND_SHADOW,
-            mujoco.mjtRndFlag.mjRND_REFLECTION,
-            mujoco.mjtRndFlag.mjRND_SKYBOX,
-        ):
-            self.renderer.scene.flags[flag] = False
 
     def render(self, camera: str) -> np.ndarray:
         """(size, size, 3) uint8 image from `camera` ("agentview", "eye_in_hand" or any MJCF camera name)."""
@@ -35,11 +34,7 @@ class CameraRenderer:
         if mujoco.mj_name2id(self.scene.sim.model._model, mujoco.mjtObj.mjOBJ_CAMERA, name) < 0:
             raise ValueError(f"unknown camera {camera!r}; the observation cameras are {CAMERAS}")
         self.renderer.update_scene(self.scene.sim.data._data, camera=name)
-        for flag in (
-            mujoco.mjtRndFlag.mjRND_SHADOW,
-            mujoco.mjtRndFlag.mjRND_REFLECTION,
-            mujoco.mjtRndFlag.mjRND_SKYBOX,
-        ):
+        for flag in _OFF_FLAGS:  # the only place they are set: right before each render
             self.renderer.scene.flags[flag] = False
         return self.renderer.render().copy()
 

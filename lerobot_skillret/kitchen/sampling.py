@@ -44,11 +44,7 @@ def sample_poses(task: Task, rng: np.random.Generator) -> tuple[dict[str, Pose],
 
 
 def _sample_once(task: Task, rng: np.random.Generator) -> tuple[dict[str, Pose], dict[str, float]]:
-    init = dict(task.init)
-    if task.shuffle:
-        names = list(task.shuffle)
-        order = rng.permutation(len(names))
-        init = {**init, **{names[i]: task.init[names[j]] for i, j in enumerate(order)}}
+    init = task.init
     joints = dict(task.joints)
     poses: dict[str, Pose] = {}
     taken: list[tuple[float, float, float]] = []

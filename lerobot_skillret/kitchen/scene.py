@@ -20,6 +20,7 @@ from robosuite.models.tasks import ManipulationTask
 from robosuite.utils.mjcf_utils import array_to_string
 
 from lerobot_skillret.kitchen import layout
+from lerobot_skillret.kitchen.observations import FIXTURE_JOINTS
 
 # One simulation timestep for generation and evaluation (layout.SIMULATION_TIMESTEP), applied here only.
 macros.SIMULATION_TIMESTEP = layout.SIMULATION_TIMESTEP
@@ -35,7 +36,6 @@ _FIXTURE_ASSETS = (
     ("serving.xml", "serving", "", "serving"),
     ("shelf.xml", "shelf", "", "shelf"),
 )
-FIXTURE_JOINTS = ("drawer_slide", "light_switch_joint", "burner_switch_joint")
 ROBOT_INIT_NOISE = 0.02  # rad, per arm joint, drawn from the scene's own rng (robosuite's uses np.random)
 
 

@@ -41,8 +41,6 @@ class Task:
     max_steps: int
     plan: tuple[Step, ...]
     joints: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_JOINTS))
-    # objects that may be swapped among themselves at init (e.g. which block colour starts in the drawer)
-    shuffle: tuple[str, ...] = ()
 
     def success(self, scene: P.SceneState) -> bool:
         return all(goal(scene) for goal in self.goals)

@@ -15,11 +15,7 @@ from typing import Any
 import yaml
 
 from lerobot_skillret.kitchen.generate import DEFAULT_DEMOS, DEFAULT_PLAY_EPISODES, DEFAULT_PLAY_STEPS
-
-# Methods the pipeline knows: the method, its ablations (seed A.4 / Table 3) and LeRobot baselines (seed C.4).
-SKILLRET_METHODS = ("skillret", "no_retrieval", "all_retrieval", "random_retrieval", "no_prior")
-BASELINE_METHODS = ("act", "diffusion", "act_ft")
-METHODS = SKILLRET_METHODS + BASELINE_METHODS
+from lerobot_skillret.pipeline.methods import METHODS
 
 
 @dataclass
@@ -77,7 +73,7 @@ class PipelineConfig:
     output_dir: str = "outputs/pipeline"
     tasks: list[str] = field(default_factory=lambda: ["cleaning_up"])
     seeds: list[int] = field(default_factory=lambda: [0])
-    methods: list[str] = field(default_factory=lambda: ["skillret"])
+    methods: list[str] = field(default_factory=lambda: ["skillret"])  # names in `methods.METHODS`
     results_dir: str | None = None  # finished cells' eval JSONs, cell.json, retrieval_summary.json go here
     threads: int | None = None  # OMP_NUM_THREADS of every stage (1 avoids oversubscription on a shared machine)
     jobs: int = 1  # cells run at once (one core each with threads: 1); shared stages are built once, under a lock
@@ -93,9 +89,8 @@ class PipelineConfig:
         unknown = [m for m in self.methods if m not in METHODS]
         if unknown:
             raise ValueError(f"pipeline config: unknown methods {unknown}; choose from {list(METHODS)}.")
-        needed = {"act": ["act"], "diffusion": ["diffusion"], "act_ft": ["act_ft_prior", "act_ft"]}
         for method in self.methods:
-            for key in needed.get(method, []):
+            for key in METHODS[method].baselines:
                 if key not in self.baselines:
                     raise ValueError(
                         f"pipeline config: method `{method}` needs a `baselines.{key}` section "

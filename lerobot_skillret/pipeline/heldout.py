@@ -18,7 +18,7 @@ import torch
 
 from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
 from lerobot_skillret.files import write_json_atomic, write_text_atomic
-from lerobot_skillret.pipeline.config import SKILLRET_METHODS
+from lerobot_skillret.pipeline.methods import METHODS
 from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.results import HELDOUT_FILE
 from lerobot_skillret.pipeline.stages import StageRunner
@@ -78,7 +78,7 @@ def run_heldout(plan: Plan, runner: StageRunner, results_dir: Path | None) -> No
 
     Cells whose stage-2 run has not finished are left out; a stored score is reused while it covers the checkpoints
     the protocol evaluates. Scores are copied next to the cells' published eval JSONs in `results_dir`."""
-    trained = [c for c in plan.cells() if c.method in SKILLRET_METHODS and plan.train_dir(c).is_dir()]
+    trained = [c for c in plan.cells() if METHODS[c.method].is_skillret and plan.train_dir(c).is_dir()]
     if not trained:
         log.warning("no trained skillret-variant cell in %s: nothing to score", plan.root)
     for task in plan.cfg.tasks:

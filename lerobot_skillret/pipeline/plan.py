@@ -20,22 +20,11 @@ from pathlib import Path
 from typing import Any
 
 from lerobot_skillret.pipeline.config import PipelineConfig, TrainSpec
+from lerobot_skillret.pipeline.methods import METHODS
 from lerobot_skillret.pipeline.stages import Stage
 
 BIN = Path(sys.executable).parent
 PRETRAINED = Path("checkpoints/last/pretrained_model")
-
-# The retrieval each skillret variant consumes: None = no retrieval file (the stage-2 run retrieves nothing).
-RETRIEVAL_MODE = {
-    "skillret": "default",
-    "all_retrieval": "all",
-    "random_retrieval": "random",
-    "no_retrieval": None,
-    "no_prior": None,
-}
-# skillret variants whose skills are pre-trained on the prior (stage 1 shared by every task of a seed).
-SKILLS_FROM_PRIOR = ("skillret", "no_retrieval", "all_retrieval", "random_retrieval")
-RETRIEVAL_ARGS = {"default": {}, "all": {"ablation": "all"}, "random": {"ablation": "random"}}
 
 
 def cli_args(options: dict[str, Any]) -> list[str]:
@@ -124,7 +113,7 @@ class Plan:
 
     def needs_prior(self) -> bool:
         """Play data is generated only if a method reads it: skills from the prior, or ACT's pre-training."""
-        return any(m in SKILLS_FROM_PRIOR or m == "act_ft" for m in self.cfg.methods)
+        return any(METHODS[m].reads_prior for m in self.cfg.methods)
 
     # --- training -----------------------------------------------------------------------------------------
     def _train(self, name: str, output: Path, dataset_root: Path, spec: TrainSpec, seed: int, head: list[str]) -> Stage:
@@ -160,23 +149,25 @@ class Plan:
         head = ["--policy.type=skillret", "--policy.stage=skills"]
         return self._train(f"skills/{out.name}", out, data, self.cfg.skills, seed, head)
 
-    def retrieval_dir(self, task: str, mode: str, seed: int) -> Path:
+    def retrieval_dir(self, task: str, method: str, seed: int) -> Path:
         """One folder per retrieval: the file stage 2 reads and its report, published together."""
-        return self.root / "retrieval" / f"{task}_{mode}_seed{seed}"
+        return self.root / "retrieval" / f"{task}_{method}_seed{seed}"
 
-    def retrieval_path(self, task: str, mode: str, seed: int) -> Path:
-        return self.retrieval_dir(task, mode, seed) / "retrieval.safetensors"
+    def retrieval_path(self, task: str, method: str, seed: int) -> Path:
+        return self.retrieval_dir(task, method, seed) / "retrieval.safetensors"
 
     def retrieval_summary(self, cell: Cell) -> Path | None:
         """The report summary (precision per primitive, distances) of the retrieval a cell trained on, if any."""
-        mode = RETRIEVAL_MODE.get(cell.method)
-        return None if mode is None else self.retrieval_dir(cell.task, mode, cell.seed) / "report" / "summary.json"
+        if METHODS[cell.method].retrieval is None:
+            return None
+        return self.retrieval_dir(cell.task, cell.method, cell.seed) / "report" / "summary.json"
 
-    def retrieval_stage(self, task: str, mode: str, seed: int) -> Stage:
-        out = self.retrieval_dir(task, mode, seed)
+    def retrieval_stage(self, task: str, method: str, seed: int) -> Stage:
+        out = self.retrieval_dir(task, method, seed)
         stage = Stage(f"retrieval/{out.name}", out)
-        options = {**self.cfg.retrieval.args, **RETRIEVAL_ARGS[mode], "seed": seed}
-        if mode == "all":  # the whole prior is retrieved: a fraction or candidate count would contradict it
+        own = METHODS[method].retrieval or {}
+        options = {**self.cfg.retrieval.args, **own, "seed": seed}
+        if own.get("ablation") == "all":  # the whole prior is retrieved: a fraction or candidate count contradicts it
             options = {k: v for k, v in options.items() if k.replace("_", "-") not in ("fraction", "num-prior")}
         stage.command = [
             str(BIN / "skillret-retrieve"),
@@ -201,28 +192,32 @@ class Plan:
     def train_dir(self, cell: Cell) -> Path:
         return self.root / "train" / cell.method / cell.task / f"seed{cell.seed}"
 
-    def act_prior_stage(self, seed: int) -> Stage:
-        out = self.root / "train" / "act_ft_prior" / f"seed{seed}"
-        spec = self.cfg.baselines["act_ft_prior"]
-        return self._train(f"train/act_ft_prior/seed{seed}", out, self.play_root(), spec, seed, ["--policy.type=act"])
+    def prior_pretraining_dir(self, method: str, seed: int) -> Path:
+        return self.root / "train" / f"{method}_prior" / f"seed{seed}"
+
+    def prior_pretraining_stage(self, method: str, seed: int) -> Stage:
+        """A LeRobot baseline's pre-training on the prior (`baselines.<method>_prior`), shared by the tasks."""
+        out, m = self.prior_pretraining_dir(method, seed), METHODS[method]
+        spec, head = self.cfg.baselines[f"{method}_prior"], [f"--policy.type={m.lerobot_type}"]
+        return self._train(f"train/{method}_prior/seed{seed}", out, self.play_root(), spec, seed, head)
 
     def train_stage(self, cell: Cell) -> Stage:
+        """Stage 2 of a skillret method, or a LeRobot baseline's training on the target demos."""
+        m, seed = METHODS[cell.method], cell.seed
         out, name, target = (
             self.train_dir(cell),
-            f"train/{cell.method}/{cell.task}/seed{cell.seed}",
+            f"train/{cell.method}/{cell.task}/seed{seed}",
             self.demos_root(cell.task),
         )
-        if cell.method in ("act", "diffusion"):
-            head = [f"--policy.type={cell.method}"]
-            return self._train(name, out, target, self.cfg.baselines[cell.method], cell.seed, head)
-        if cell.method == "act_ft":
-            prior_ckpt = self.root / "train" / "act_ft_prior" / f"seed{cell.seed}" / PRETRAINED
-            head = [f"--policy.path={prior_ckpt}"]
-            return self._train(name, out, target, self.cfg.baselines["act_ft"], cell.seed, head)
-        mode = RETRIEVAL_MODE[cell.method]
-        if cell.method == "no_prior":
+        if m.lerobot_type is not None:
+            if m.pretrain_on_prior:
+                head = [f"--policy.path={self.prior_pretraining_dir(cell.method, seed) / PRETRAINED}"]
+            else:
+                head = [f"--policy.type={m.lerobot_type}"]
+            return self._train(name, out, target, self.cfg.baselines[cell.method], seed, head)
+        if m.skills == "target":
             head = [
-                f"--policy.path={self.skills_dir(cell.seed, cell.task) / PRETRAINED}",
+                f"--policy.path={self.skills_dir(seed, cell.task) / PRETRAINED}",
                 "--policy.stage=policy",
                 "--policy.use_retrieval=false",
                 "--policy.prior_repo_id=null",
@@ -230,19 +225,19 @@ class Plan:
             ]
         else:
             head = [
-                f"--policy.path={self.skills_dir(cell.seed) / PRETRAINED}",
+                f"--policy.path={self.skills_dir(seed) / PRETRAINED}",
                 "--policy.stage=policy",
                 f"--policy.prior_repo_id={self.repo_id(self.play_root())}",
                 f"--policy.prior_root={self.play_root()}",
             ]
-            if mode is None:
+            if m.retrieval is None:
                 head.append("--policy.use_retrieval=false")
             else:
                 head += [
                     "--policy.use_retrieval=true",
-                    f"--policy.retrieval_path={self.retrieval_path(cell.task, mode, cell.seed)}",
+                    f"--policy.retrieval_path={self.retrieval_path(cell.task, cell.method, seed)}",
                 ]
-        return self._train(name, out, target, self.cfg.policy, cell.seed, head)
+        return self._train(name, out, target, self.cfg.policy, seed, head)
 
     # --- evaluation ---------------------------------------------------------------------------------------
     def checkpoints(self, cell: Cell) -> list[tuple[int, Path]]:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from lerobot_skillret.files import write_atomic, write_text_atomic
-from lerobot_skillret.pipeline.config import METHODS
+from lerobot_skillret.pipeline.methods import METHODS
 
 PUBLISHED_CELLS = "*/*/seed*/cell.json"  # results_dir layout: <method>/<task>/seed<s>/cell.json
 HELDOUT_FILE = "heldout_error.json"  # beside a published cell: held-out imitation errors (`skillret-pipeline heldout`)

@@ -22,7 +22,8 @@ from pathlib import Path
 import yaml
 
 from lerobot_skillret.pipeline.config import PipelineConfig
-from lerobot_skillret.pipeline.plan import RETRIEVAL_MODE, SKILLS_FROM_PRIOR, Cell, Plan
+from lerobot_skillret.pipeline.methods import METHODS
+from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.protocol import publish_cell, summarise_cell
 from lerobot_skillret.pipeline.results import PUBLISHED_HELDOUT, collect, write_report
 from lerobot_skillret.pipeline.stages import Cancelled, Stage, StageRunner
@@ -31,11 +32,12 @@ log = logging.getLogger("skillret.pipeline")
 
 
 def prerequisites(plan: Plan, cell: Cell) -> list[Stage]:
-    """Stages shared between cells that `cell` needs first: stage-1 skills on the prior, ACT's prior pre-training."""
-    if cell.method in SKILLS_FROM_PRIOR:
+    """Stages shared between cells that `cell` needs first: stage-1 skills on the prior, a baseline's pre-training."""
+    method = METHODS[cell.method]
+    if method.skills == "prior":
         return [plan.skills_stage(cell.seed)]
-    if cell.method == "act_ft":
-        return [plan.act_prior_stage(cell.seed)]
+    if method.pretrain_on_prior:
+        return [plan.prior_pretraining_stage(cell.method, cell.seed)]
     return []
 
 
@@ -48,11 +50,11 @@ def run_cell(plan: Plan, runner: StageRunner, cell: Cell, results_dir: Path | No
         return summary
     for stage in prerequisites(plan, cell):
         runner.run(stage)  # skipped when built already; waits on its lock while another job builds it
-    if cell.method == "no_prior":
+    method = METHODS[cell.method]
+    if method.skills == "target":
         runner.run(plan.skills_stage(cell.seed, cell.task))
-    mode = RETRIEVAL_MODE.get(cell.method)
-    if mode is not None:
-        runner.run(plan.retrieval_stage(cell.task, mode, cell.seed))
+    if method.retrieval is not None:
+        runner.run(plan.retrieval_stage(cell.task, cell.method, cell.seed))
     train = plan.train_stage(cell)
     runner.run(train)
     start = time.monotonic()

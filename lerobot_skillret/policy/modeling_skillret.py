@@ -181,7 +181,8 @@ class SkillRetPolicy(PreTrainedPolicy):
         from lerobot_skillret.policy.training_data import TrainingData
 
         if self._training_data is None:
-            self._training_data = TrainingData.build(self)
+            keys = (self.low_dim_keys, self.image_keys)
+            self._training_data = TrainingData.build(self.config, self.dataset_location, keys)
             self._training_data.check_ranks(anchors)
         return self._training_data
 

@@ -11,17 +11,15 @@ from __future__ import annotations
 import hashlib
 import logging
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from pathlib import Path
 
 import torch
 from torch import Tensor
 
 from lerobot_skillret.data.fingerprint import checkpoint_fingerprint
+from lerobot_skillret.data.retrieval_file import RetrievalResult
+from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
 from lerobot_skillret.policy.window_source import WindowSource, data_parallel_rank
-from lerobot_skillret.retrieval.schema import RetrievalResult
-
-if TYPE_CHECKING:
-    from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
 
 
 @dataclass
@@ -46,16 +44,19 @@ class TrainingData:
     retrieved: RetrievedWindows | None = None
 
     @classmethod
-    def build(cls, policy: SkillRetPolicy) -> TrainingData:
-        config = policy.config
-        if policy.dataset_location is None:
+    def build(
+        cls, config: SkillRetConfig, dataset: tuple[str, Path] | None, keys: tuple[list[str], list[str]]
+    ) -> TrainingData:
+        """Window sources for `config`'s stage: `dataset` is the training dataset's (repo_id, root), `keys` the
+        policy's (low-dimensional, image) observation keys. A stage-2 run with retrieval records the stage-1
+        checkpoint's fingerprint in `config` (saved in config.json, so a resumed run checks the same one)."""
+        if dataset is None:
             raise RuntimeError(
                 "skillret training fetches temporal pairs from the training dataset on disk, but the policy was "
                 "built without `dataset_meta`. Train with lerobot-train (it passes it), or build the policy with "
                 "SkillRetPolicy(config, dataset_stats=meta.stats, dataset_meta=LeRobotDatasetMetadata(repo_id, root))."
             )
-        repo_id, root = policy.dataset_location
-        keys = (policy.low_dim_keys, policy.image_keys)
+        repo_id, root = dataset
         # the training dataset's own windows are only needed whole (history included) with `fast_windows`
         history = config.history if config.fast_windows and config.stage == "policy" else 1
         windows = {"horizon": config.horizon, "video_backend": config.video_backend}
@@ -72,7 +73,7 @@ class TrainingData:
                     "the 'no prior data' ablation)."
                 )
             prior = WindowSource(config.prior_repo_id, config.prior_root, *keys, history=config.history, **windows)
-        retrieved = cls._retrieved(policy, own, prior) if config.use_retrieval else None
+        retrieved = cls._retrieved(config, own, prior) if config.use_retrieval else None
         return cls(own=own, prior=prior if config.finetune_skills else None, retrieved=retrieved)
 
     def check_ranks(self, anchors: Tensor) -> None:
@@ -109,8 +110,7 @@ class TrainingData:
             )
 
     @staticmethod
-    def _retrieved(policy: SkillRetPolicy, own: WindowSource, prior: WindowSource | None) -> RetrievedWindows | None:
-        config = policy.config
+    def _retrieved(config: SkillRetConfig, own: WindowSource, prior: WindowSource | None) -> RetrievedWindows | None:
         if prior is None:
             raise ValueError(
                 "`use_retrieval` is true but `prior_repo_id` is not set: retrieval needs the prior dataset. Pass "

@@ -1,12 +1,11 @@
 """Retrieval stage: score prior windows by their skill latents' distance to the target's, keep the closest.
 
-Modules, in data-flow order:
-- `settings`: `RetrievalSettings` (the paper's knobs, A.4 modes, opt-in extras) and `ABLATIONS`.
-- `kernels`: `NearestTarget`, chunked L2 / symmetric-KL distance to the nearest target latent in bounded memory.
-- `select`: the r closest (float64-exact at the cut), and the greedy walk behind suppression / quota options.
-- `engine`: `select_windows`, scores + selection on latents.
-- `api`: `retrieve`, checkpoint + datasets -> encoded windows -> `RetrievalResult` file (+ report).
-- `schema`: `RetrievalResult`, the file stage 2 reads.
+Modules (start reading at `api.retrieve`):
+- `settings`: `RetrievalSettings` (the paper's knobs and A.4 modes) and `ABLATIONS`, with their range checks.
+- `api`: `retrieve`, read top to bottom: checkpoint + datasets -> encoded windows -> `select_windows` (modes on
+  latents) -> `RetrievalResult` file (`data.retrieval_file`, the contract stage 2 reads) + report.
+- `kernels`: `NearestTarget`, chunked L2 / symmetric-KL distance to the nearest target latent in bounded memory;
+  `smallest`, the r closest (float64-exact at the cut); `Selection`.
 - `report`: summary JSON, plots, retrieval precision against primitive labels.
 - `cli`: the `skillret-retrieve` command.
 """

@@ -72,11 +72,12 @@ def build_parser() -> argparse.ArgumentParser:
     paper.add_argument(
         "--ablation",
         choices=sorted(ABLATIONS),
-        default="ours",
-        help="a row of appendix A.4; the options below override it (default: ours)",
+        default="nearest",
+        help="a row of appendix A.4 (a row that is a mode has its name); the options below override it "
+        "(default: nearest, the method)",
     )
     paper.add_argument("--mode", choices=MODES, help="nearest (the method), random, all or none")
-    paper.add_argument("--fraction", type=float, help="r: share of candidates retrieved, in [0, 1] (paper 0.1)")
+    paper.add_argument("--fraction", type=float, help="r: share of candidates retrieved, in (0, 1] (paper 0.1)")
     paper.add_argument("--metric", choices=METRICS, help="l2 on encoder means, or symmetric KL (A.2)")
     paper.add_argument(
         "--num-prior",
@@ -86,28 +87,10 @@ def build_parser() -> argparse.ArgumentParser:
     paper.add_argument("--num-target", type=int, help="M target windows encoded (paper 2500)")
     paper.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
 
-    extra = parser.add_argument_group("options beyond the paper (off by default)")
-    extra.add_argument("--neighbors", type=int, help="score by the k-th nearest target latent (default 1)")
-    extra.add_argument(
-        "--nms-radius",
-        type=int,
-        help="keep no two retrieved anchors of one episode within this many steps (default 0: off)",
-    )
-    extra.add_argument(
-        "--target-quota", type=int, help="each target latent may be the nearest of at most this many retrieved windows"
-    )
-    extra.add_argument(
-        "--importance",
-        type=_flag,
-        nargs="?",
-        const=True,
-        help="rank by the k-NN target/prior density ratio instead of the raw distance",
-    )
-    extra.add_argument(
+    run = parser.add_argument_group("execution")
+    run.add_argument(
         "--exact", type=_flag, nargs="?", const=True, help="settle windows near the cut in float64 (default true)"
     )
-
-    run = parser.add_argument_group("execution")
     run.add_argument("--batch-size", type=int, help="windows per encoder forward pass (default 512)")
     run.add_argument(
         "--chunk-size", type=int, help="prior rows per distance block (default 256: its [256, M] block stays in cache)"
@@ -120,20 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
 def settings_from_args(args: argparse.Namespace) -> RetrievalSettings:
     """The ablation's settings, overridden by every option given explicitly."""
     given = {}
-    for name in (
-        "mode",
-        "fraction",
-        "metric",
-        "num_prior",
-        "num_target",
-        "neighbors",
-        "nms_radius",
-        "target_quota",
-        "importance",
-        "exact",
-        "batch_size",
-        "chunk_size",
-    ):
+    for name in ("mode", "fraction", "metric", "num_prior", "num_target", "exact", "batch_size", "chunk_size"):
         if getattr(args, name) is not None:
             given[name] = getattr(args, name)
     return ablation(args.ablation, seed=args.seed, **given)

@@ -1,4 +1,4 @@
-"""Distance from every prior latent to its nearest target latent, in bounded memory.
+"""Distance from every prior latent to its nearest target latent, in bounded memory, and the r closest.
 
 Algorithm 2 (lines 4-5) needs, for each of N prior windows, the distance to the closest of M target windows. The
 N x M matrix is never built: prior rows are scored in chunks of `chunk_size`, each chunk with ONE matrix product
@@ -15,8 +15,10 @@ minimum (it does not change which j is nearest).
   square leaves four products of a prior feature with a target feature, i.e. one product over 4 D features.
 
 The chunks run in float32 (the GEMM is the cost). Each row also gets a rigorous-style bound on its float32 error
-(`Scores.margin`), which `select.smallest` uses to re-score in float64 only the few rows whose side of the cut is
-uncertain: the selected set then equals a float64 brute-force computation.
+(`Scores.margin`), which `smallest` (Algorithm 2, line 6) uses to re-score in float64 only the few rows whose side
+of the cut is uncertain: the selected set then equals a float64 brute-force computation.
+
+`Selection` is what `api.select_windows` makes of the scores (and what the report reads).
 """
 
 from __future__ import annotations
@@ -38,11 +40,25 @@ _EXACT_SLICE = 1 << 16  # prior rows gathered at once by `exact`
 
 @dataclass
 class Scores:
-    """Per prior row: the metric value to its k-th nearest target, that target's index, and an error bound."""
+    """Per prior row: the metric value to its nearest target, that target's index, and an error bound."""
 
-    value: Tensor  # [N] (the run's dtype): squared L2 or symmetric KL to the k-th nearest target latent
+    value: Tensor  # [N] (the run's dtype): squared L2 or symmetric KL to the nearest target latent
     nearest: Tensor | None  # [N] int64: index of the nearest target latent (only when asked: it costs ~30%)
     margin: Tensor  # [N]: |value - exact value| <= margin (0-ish for a float64 run)
+
+
+@dataclass
+class Selection:
+    """Scores of every candidate and which candidates are retrieved."""
+
+    distance: Tensor  # [N] float64: L2 distance (or symmetric KL) of each candidate to its nearest target
+    retrieved: Tensor  # [K] int64: positions into the candidates, sorted by distance (ascending)
+    nearest: Tensor  # [K] int64: index of the target latent nearest to each retrieved window
+
+    @property
+    def cut(self) -> float:
+        """Largest distance among the retrieved windows (nan when nothing is retrieved)."""
+        return float(self.distance[self.retrieved].max()) if len(self.retrieved) else float("nan")
 
 
 def check_latents(mean: Tensor, log_var: Tensor | None, metric: str, name: str, check_finite: bool = True) -> None:
@@ -103,33 +119,16 @@ def _non_finite(name: str) -> ValueError:
 
 
 class NearestTarget:
-    """Scores prior latents against a fixed set of target latents (Algorithm 2, lines 2-5).
+    """Scores prior latents against a fixed set of target latents (Algorithm 2, lines 2-5)."""
 
-    `neighbors`=k scores each prior row by its k-th nearest target (k=1 is the paper). `exclude` (per prior row,
-    a target column to ignore, -1 for none) lets a prior subset serve as its own reference without matching
-    itself (used by importance-weighted scoring).
-    """
-
-    def __init__(
-        self,
-        target_mean: Tensor,
-        target_log_var: Tensor | None = None,
-        *,
-        metric: str = "l2",
-        neighbors: int = 1,
-    ) -> None:
+    def __init__(self, target_mean: Tensor, target_log_var: Tensor | None = None, *, metric: str = "l2") -> None:
         check_latents(target_mean, target_log_var, metric, "target")
         if target_mean.shape[0] == 0:
             raise ValueError(
                 "The target set is empty: retrieval needs at least one target window (is the target dataset "
                 "empty, or --num-target 0?)."
             )
-        if not 1 <= neighbors <= target_mean.shape[0]:
-            raise ValueError(
-                f"neighbors={neighbors} must be between 1 and the number of target windows ({target_mean.shape[0]})."
-            )
         self.metric = metric
-        self.neighbors = neighbors
         self.target_mean = target_mean.detach().to(torch.float64)
         self.target_log_var = None if target_log_var is None else target_log_var.detach().to(torch.float64)
 
@@ -180,21 +179,18 @@ class NearestTarget:
         *,
         chunk_size: int = 256,
         dtype: torch.dtype = torch.float32,
-        exclude: Tensor | None = None,
         with_nearest: bool = False,
         progress: bool = False,
     ) -> Scores:
         """Score every prior row; memory beyond the inputs is O(chunk_size * M), never O(N * M).
 
         `with_nearest` also returns each row's nearest target index (a row minimum with its position is ~30%
-        slower than the plain minimum, so it is off unless an option needs it)."""
+        slower than the plain minimum, so it is off unless the caller needs it for most rows)."""
         with single_threaded() as threads:  # parallel over chunks instead (see `single_threaded`)
             self._check_prior(prior_mean, prior_log_var)
             if chunk_size < 1:
                 raise ValueError(f"chunk_size must be >= 1; got {chunk_size}.")
             num_prior, num_target = prior_mean.shape[0], self.target_mean.shape[0]
-            if exclude is not None and exclude.shape != (num_prior,):
-                raise ValueError(f"exclude needs one entry per prior row ({num_prior}); got {tuple(exclude.shape)}.")
             center = self._center(prior_mean)
             target_features, target_const = self._target_features(center)
             width = target_features.shape[1]
@@ -228,11 +224,11 @@ class NearestTarget:
                     const = self._prior_features(prior_mean[start:stop], log_var, center, rows[:, :width])
                     block = buffer[: stop - start]
                     torch.mm(rows, target_aug, out=block)
-                    if exclude is not None:
-                        hit = torch.nonzero(exclude[start:stop] >= 0).squeeze(1)
-                        block[hit, exclude[start:stop][hit]] = float("inf")
-                    kth = self._kth_nearest(block, None if nearest is None else nearest[start:stop])
-                    total = torch.add(kth, const, out=value[start:stop])
+                    if nearest is None:
+                        best = torch.amin(block, dim=1)
+                    else:
+                        best, nearest[start:stop] = torch.min(block, dim=1)
+                    total = torch.add(best, const, out=value[start:stop])
                     norm = const.sqrt() if self.metric == "l2" else rows[:, :width].norm(dim=1)
                     bound = norm.mul_(target_norm_max).add_(target_const_max).add_(const.abs()).add_(total.abs())
                     torch.mul(bound, gamma, out=margin[start:stop])
@@ -245,9 +241,7 @@ class NearestTarget:
                 raise _non_finite("prior")
         return Scores(value=value, nearest=nearest, margin=margin)
 
-    def exact(
-        self, prior_mean: Tensor, prior_log_var: Tensor | None, rows: Tensor, exclude: Tensor | None = None
-    ) -> Tensor:
+    def exact(self, prior_mean: Tensor, prior_log_var: Tensor | None, rows: Tensor) -> Tensor:
         """float64 values of the given prior rows: settles the rows whose side of the selection cut is uncertain.
 
         Rows are gathered a slice at a time, so even a degenerate case (every row uncertain) stays in bounded
@@ -256,22 +250,9 @@ class NearestTarget:
         for start in range(0, len(rows), _EXACT_SLICE):
             part = rows[start : start + _EXACT_SLICE]
             log_var = None if prior_log_var is None else prior_log_var[part]
-            sub_exclude = None if exclude is None else exclude[part]
-            scores = self.score(prior_mean[part], log_var, chunk_size=256, dtype=torch.float64, exclude=sub_exclude)
+            scores = self.score(prior_mean[part], log_var, chunk_size=256, dtype=torch.float64)
             out[start : start + len(part)] = scores.value
         return out
-
-    def _kth_nearest(self, block: Tensor, index_out: Tensor | None) -> Tensor:
-        """Row-wise k-th smallest value; with `index_out`, also writes the column of each row's smallest."""
-        if self.neighbors == 1:
-            if index_out is None:
-                return torch.amin(block, dim=1)
-            values, index_out[:] = torch.min(block, dim=1)
-            return values
-        values, index = torch.topk(block, self.neighbors, dim=1, largest=False, sorted=True)
-        if index_out is not None:
-            index_out[:] = index[:, 0]
-        return values[:, -1]
 
     def _center(self, prior_mean: Tensor, rows: int = 1 << 16) -> Tensor:
         """Mean of prior and target latents together (float64, one chunked pass over the prior, no copy)."""
@@ -279,3 +260,32 @@ class NearestTarget:
         for start in range(0, prior_mean.shape[0], rows):
             total = total + prior_mean[start : start + rows].sum(0, dtype=torch.float64)
         return total / (prior_mean.shape[0] + self.target_mean.shape[0])
+
+
+def smallest(scores: Scores, count: int, exact: Callable[[Tensor], Tensor] | None = None) -> tuple[Tensor, Tensor]:
+    """Rows of the `count` smallest values, sorted by value, and those values (float64): Algorithm 2, line 6.
+
+    With `exact` (rows -> float64 values, e.g. `NearestTarget.exact`), the rows whose error margin straddles the
+    cut are re-scored exactly, which makes the set the one a float64 computation would select (ties broken by row).
+    """
+    value, num = scores.value.to(torch.float64, copy=True), scores.value.shape[0]
+    if not 0 <= count <= num:
+        raise ValueError(f"Cannot select {count} of {num} candidates.")
+    if exact is not None and 0 < count < num:
+        margin = scores.margin.to(torch.float64)
+        low, high = value - margin, value + margin
+        # Every value moved by at most its margin, so the exact count-th smallest lies in [cut_low, cut_high]:
+        # rows entirely below cut_low are in, rows entirely above cut_high are out, the rest is re-scored.
+        cut_low = torch.kthvalue(low, count).values
+        cut_high = torch.kthvalue(high, count).values
+        sure_in = high < cut_low
+        band = torch.nonzero(~sure_in & (low <= cut_high)).squeeze(1)
+        value[band] = exact(band).to(torch.float64)
+        sure_rows = torch.nonzero(sure_in).squeeze(1)
+        # The rest of the count: the band's smallest exact values, ties broken by row (band rows are ascending).
+        rest = band[torch.sort(value[band], stable=True).indices[: count - sure_rows.shape[0]]]
+        rows = torch.cat([sure_rows, rest])
+    else:
+        rows = torch.topk(value, count, largest=False, sorted=False).indices
+    order = torch.sort(value[rows], stable=True).indices
+    return rows[order], value[rows[order]]

@@ -24,9 +24,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from lerobot_skillret.data.retrieval_file import RetrievalResult
 from lerobot_skillret.files import write_atomic, write_text_atomic
-from lerobot_skillret.retrieval.engine import Selection
-from lerobot_skillret.retrieval.schema import RetrievalResult
+from lerobot_skillret.retrieval.kernels import Selection
 
 QUANTILES = (0.0, 0.01, 0.05, 0.1, 0.25, 0.5, 0.75, 0.9, 0.99, 1.0)
 PCA_PRIOR_POINTS = 5000

@@ -1,4 +1,4 @@
-"""Retrieval settings: the paper's knobs (Algorithm 2, appendices A.2 / A.4) plus opt-in options beyond it.
+"""Retrieval settings: the paper's knobs (Algorithm 2, appendices A.2 / A.4).
 
 Unset values (`None`, or "checkpoint" for `num_prior`) come from the stage-1 checkpoint's config
 (`retrieval_fraction`, `retrieval_metric`, `retrieval_num_prior`, `retrieval_num_target`), so one config file
@@ -8,9 +8,10 @@ Modes (A.4):
 - "nearest": the method; score candidates by distance to the nearest target latent, keep the r closest.
 - "random": the "random retrieval" ablation; the same count, drawn uniformly from the candidates.
 - "all": the "all retrieval" ablation; every prior window (N = size of the prior, r = 100%).
-- "none": the "no retrieval" ablation (N = 0); an empty file.
+- "none": the "no retrieval" ablation (N = 0); an empty file. It is a mode, not r = 0, so r is always in (0, 1].
 The remaining A.4 rows are settings of "nearest": 2/50/90% retrieval is `fraction`, "large retrieval" is
-`num_prior="all"` (every prior window a candidate, r = 10%). `ABLATIONS` names all of them.
+`num_prior="all"` (every prior window a candidate, r = 10%). `ABLATIONS` names all of them; a row that is a mode
+has the mode's name.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ EVERY_WINDOW = "all"
 
 # Appendix A.4's rows as settings overrides (on top of the checkpoint's defaults).
 ABLATIONS: dict[str, dict[str, Any]] = {
-    "ours": {},
+    "nearest": {},
     "none": {"mode": "none"},
     "all": {"mode": "all"},
     "random": {"mode": "random"},
@@ -40,18 +41,14 @@ ABLATIONS: dict[str, dict[str, Any]] = {
 
 @dataclass(frozen=True)
 class RetrievalSettings:
-    """What to retrieve and how. Paper defaults; the options after `seed` are extensions, off by default."""
+    """What to retrieve and how (the paper's defaults)."""
 
     mode: str = "nearest"  # nearest | random | all | none (see the module docstring)
     fraction: float | None = None  # r: share of candidates retrieved; None = checkpoint's retrieval_fraction
     metric: str | None = None  # "l2" (encoder means) or "kl" (symmetric KL, A.2); None = checkpoint's
     num_prior: int | str = FROM_CHECKPOINT  # N candidates (random anchors), "all" = every prior window
     num_target: int | None = None  # M target windows (random anchors); None = checkpoint's
-    seed: int = 0  # anchors of candidates and target windows, random mode, importance reference
-    neighbors: int = 1  # score by the k-th nearest target latent (1 = the paper)
-    nms_radius: int = 0  # >0: no two retrieved anchors of one episode within this many steps
-    target_quota: int | None = None  # each target latent is the nearest of at most this many retrieved windows
-    importance: bool = False  # rank by target/prior density ratio (kNN distances) instead of raw distance
+    seed: int = 0  # anchors of candidates and target windows, random mode
     exact: bool = True  # settle rows near the cut in float64 (set equals a float64 brute force)
     batch_size: int = 512  # windows per encoder forward pass
     chunk_size: int = 256  # prior rows per block: ~chunk_size * M * 4 bytes per worker (256: stays in cache)
@@ -84,7 +81,9 @@ class RetrievalSettings:
         return resolved
 
     def validate(self) -> None:
-        """Clear errors for values that cannot mean anything (run on resolved settings)."""
+        """Clear errors for values that cannot mean anything (run on resolved settings).
+
+        The retrieval package's only range checks; they agree with `SkillRetConfig`'s `retrieval_*` checks."""
 
         def fail(name: str, why: str) -> None:
             raise ValueError(f"retrieval setting `{name}`={getattr(self, name)!r} is invalid: {why}.")
@@ -93,21 +92,18 @@ class RetrievalSettings:
             fail("mode", f"choose one of {MODES}")
         if self.metric not in METRICS:
             fail("metric", f"choose one of {METRICS}")
-        if not isinstance(self.fraction, int | float) or not 0.0 <= self.fraction <= 1.0:
-            fail("fraction", "r is a share of the candidates in [0, 1], e.g. 0.1 for the closest 10%")
+        if not isinstance(self.fraction, int | float) or not 0.0 < self.fraction <= 1.0:
+            fail(
+                "fraction",
+                "r is a share of the candidates in (0, 1], e.g. 0.1 for the closest 10% (no retrieval is mode 'none')",
+            )
         if self.num_prior != EVERY_WINDOW and (not isinstance(self.num_prior, int) or self.num_prior < 1):
             fail("num_prior", f"N must be >= 1 candidate windows, or {EVERY_WINDOW!r} for every prior window")
         if not isinstance(self.num_target, int) or self.num_target < 1:
             fail("num_target", "M must be >= 1 target window")
-        for name in ("neighbors", "batch_size", "chunk_size"):
+        for name in ("batch_size", "chunk_size"):
             if getattr(self, name) < 1:
                 fail(name, "it must be >= 1")
-        if self.nms_radius < 0:
-            fail("nms_radius", "a suppression radius is >= 0 steps (0 disables it)")
-        if self.target_quota is not None and self.target_quota < 1:
-            fail("target_quota", "a quota is >= 1 window per target latent (or None for no quota)")
-        if self.mode != "nearest" and self.importance:
-            fail("importance", "importance weighting ranks candidates, so it needs mode 'nearest'")
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)

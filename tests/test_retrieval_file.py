@@ -8,7 +8,7 @@ import pytest
 import torch
 from safetensors.torch import save_file
 
-from lerobot_skillret.retrieval.schema import RetrievalResult
+from lerobot_skillret.data.retrieval_file import RetrievalResult
 
 
 def make_result(k: int = 5, dim: int = 4) -> RetrievalResult:

@@ -1,0 +1,66 @@
+"""Every method the benchmark compares, in one table: where its skills come from, what it retrieves, what it trains.
+
+Adding a method is one entry in `METHODS`; the plan, the runner, the held-out score and the results tables read
+everything they need from it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+
+@dataclass(frozen=True)
+class Method:
+    name: str
+    summary: str  # one line: what the row of the results table means
+    # stage-1 skills: "prior" (pre-trained on play data, shared by the tasks of a seed), "target" (on the task's own
+    # demos: the "no prior data" ablation), None (not a skillret method)
+    skills: str | None = None
+    # `skillret-retrieve` options of the method's retrieval (None: stage 2 trains without a retrieval file)
+    retrieval: dict[str, Any] | None = None
+    # a LeRobot baseline: the policy type lerobot-train builds, and whether it is pre-trained on the prior first
+    lerobot_type: str | None = None
+    pretrain_on_prior: bool = False
+    # the pipeline config's `baselines.<key>` sections (lerobot-train options) the method needs
+    baselines: tuple[str, ...] = field(default=())
+
+    @property
+    def is_skillret(self) -> bool:
+        return self.skills is not None
+
+    @property
+    def reads_prior(self) -> bool:
+        """Whether the method needs the play data (skills from it, or a baseline pre-trained on it)."""
+        return self.skills == "prior" or self.pretrain_on_prior
+
+
+METHODS: dict[str, Method] = {
+    m.name: m
+    for m in (
+        # the method and its ablations (seed A.4 / Table 3)
+        Method("skillret", "skills from the prior, the r closest prior windows retrieved", "prior", {}),
+        Method("no_retrieval", "skills from the prior, no retrieved windows", "prior"),
+        Method("all_retrieval", "skills from the prior, every prior window retrieved", "prior", {"ablation": "all"}),
+        Method("random_retrieval", "skills from the prior, r random prior windows", "prior", {"ablation": "random"}),
+        Method("no_prior", "skills and policy from the target demos only", "target"),
+        # LeRobot's own policies (seed C.4), trained by lerobot-train
+        Method("act", "LeRobot ACT on the target demos", lerobot_type="act", baselines=("act",)),
+        Method(
+            "diffusion", "LeRobot Diffusion on the target demos", lerobot_type="diffusion", baselines=("diffusion",)
+        ),
+        Method(
+            "act_ft",
+            "LeRobot ACT pre-trained on the prior, fine-tuned on the target demos",
+            lerobot_type="act",
+            pretrain_on_prior=True,
+            baselines=("act_ft_prior", "act_ft"),
+        ),
+    )
+}
+
+
+def get_method(name: str) -> Method:
+    if name not in METHODS:
+        raise ValueError(f"unknown method {name!r}; choose from {list(METHODS)}.")
+    return METHODS[name]
