@@ -194,6 +194,10 @@ def test_plan_wires_each_ablation(tmp_path: Path) -> None:
     all_cmd = plan.retrieval_stage("cook", "all_retrieval", 0).command
     assert "--ablation=all" in all_cmd and not any(a.startswith(("--fraction", "--num-prior")) for a in all_cmd)
     assert "--fraction=0.05" in plan.retrieval_stage("cook", "skillret", 0).command
+    exact = Plan(
+        PipelineConfig(output_dir=str(tmp_path), tasks=["cook"], retrieval=RetrievalSpec(args={"exact": False}))
+    )
+    assert "--no-exact" in exact.retrieval_stage("cook", "skillret", 0).command  # argparse's boolean form
     assert not any(a.startswith("--ablation") for a in plan.retrieval_stage("cook", "skillret", 0).command)
 
 

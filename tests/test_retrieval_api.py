@@ -205,7 +205,7 @@ def test_cli_options_map_onto_settings():
     assert parse("--ablation=random", "--seed=3") == RetrievalSettings(mode="random", seed=3)
     assert parse("--ablation", "large", "--fraction", "0.05").num_prior == "all"
     assert parse("--ablation", "nearest") == parse()
-    flags = parse("--exact=false", "--num-prior", "250_000")
+    flags = parse("--no-exact", "--num-prior", "250_000")
     assert (flags.exact, flags.num_prior) == (False, 250_000)
 
 

@@ -185,7 +185,7 @@ class Plan:
             str(stage.partial / "retrieval.safetensors"),
             "--report-dir",
             str(stage.partial / "report"),
-            *[f"--{k.replace('_', '-')}={v}" for k, v in options.items()],
+            *_retrieve_args(options),
         ]
         return stage
 
@@ -307,6 +307,15 @@ class Plan:
 
     def cells(self) -> list[Cell]:
         return [Cell(m, t, s) for s in self.cfg.seeds for t in self.cfg.tasks for m in self.cfg.methods]
+
+
+def _retrieve_args(options: dict[str, Any]) -> list[str]:
+    """{"num_prior": 1000, "exact": False} -> ["--num-prior=1000", "--no-exact"] (skillret-retrieve's argparse flags)."""
+    out = []
+    for key, value in options.items():
+        flag = key.replace("_", "-")
+        out.append((f"--{flag}" if value else f"--no-{flag}") if isinstance(value, bool) else f"--{flag}={value}")
+    return out
 
 
 def _repoint(path: Path, old: Path, new: Path) -> None:

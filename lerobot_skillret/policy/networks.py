@@ -1,4 +1,4 @@
-"""Building blocks shared by every skillret module: MLPs, the observation encoder, spatial-softmax pooling.
+"""Building blocks shared by every skillret module: MLPs, the observation encoder (LeRobot's spatial softmax).
 
 The seed (C.1) gives each of the four observation-taking modules (skill encoder, decoder, prior, policy) its own
 observation encoder: an MLP for the low-dimensional inputs and, per camera, a ResNet-18 trained from scratch whose
@@ -12,6 +12,8 @@ from collections.abc import Mapping, Sequence
 
 import torch
 import torchvision
+from lerobot.policies.diffusion.modeling_diffusion import SpatialSoftmax
+from lerobot.policies.utils import get_output_shape
 from torch import Tensor, nn
 
 
@@ -31,25 +33,6 @@ def mlp_out_dim(in_dim: int, hidden: Sequence[int], out_dim: int | None = None) 
     if out_dim is not None:
         return out_dim
     return hidden[-1] if hidden else in_dim
-
-
-class SpatialSoftmax(nn.Module):
-    """Feature map (N, C, H, W) -> expected image coordinates of K learned keypoints, (N, 2K).
-
-    A 1x1 convolution makes K heat maps; a softmax over each map's pixels gives a distribution whose mean (x, y)
-    in [-1, 1] is the keypoint. It keeps *where* things are, which average pooling throws away.
-    """
-
-    def __init__(self, in_channels: int, height: int, width: int, num_keypoints: int) -> None:
-        super().__init__()
-        self.keypoints = nn.Conv2d(in_channels, num_keypoints, kernel_size=1)
-        ys, xs = torch.meshgrid(torch.linspace(-1, 1, height), torch.linspace(-1, 1, width), indexing="ij")
-        self.register_buffer("grid", torch.stack([xs.reshape(-1), ys.reshape(-1)], dim=1), persistent=False)
-
-    def forward(self, features: Tensor) -> Tensor:
-        maps = self.keypoints(features).flatten(2)  # (N, K, H*W)
-        attention = torch.softmax(maps, dim=-1)
-        return (attention @ self.grid).flatten(1)  # (N, K, 2) -> (N, 2K)
 
 
 def random_crop(images: Tensor, size: tuple[int, int], generator: torch.Generator | None = None) -> Tensor:
@@ -83,8 +66,8 @@ class CameraEncoder(nn.Module):
             resnet.conv1 = nn.Conv2d(channels, 64, kernel_size=7, stride=2, padding=3, bias=False)
         self.trunk = nn.Sequential(*list(resnet.children())[:-2])  # drop average pooling and the classifier
         in_h, in_w = self.crop_shape or (height, width)
-        with torch.no_grad():  # probe in eval mode: batch norm cannot train on one 1x1 feature map
-            feature_shape = self.trunk.eval()(torch.zeros(1, channels, in_h, in_w)).shape
+        # probe in eval mode: batch norm cannot train on one 1x1 feature map
+        feature_shape = get_output_shape(self.trunk.eval(), (1, channels, in_h, in_w))
         self.trunk.train()
         if feature_shape[2] * feature_shape[3] == 1:
             logging.warning(
@@ -93,14 +76,16 @@ class CameraEncoder(nn.Module):
                 in_h,
                 in_w,
             )
-        self.pool = SpatialSoftmax(feature_shape[1], feature_shape[2], feature_shape[3], num_keypoints)
+        # LeRobot's (Diffusion Policy's) spatial softmax: K learned heat maps -> their expected (x, y) in [-1, 1];
+        # it keeps *where* things are, which average pooling throws away
+        self.pool = SpatialSoftmax(feature_shape[1:], num_kp=num_keypoints)
         self.out_dim = 2 * num_keypoints
 
     def forward(self, images: Tensor) -> Tensor:
         """(N, C, H, W) floats in [0, 1] -> (N, 2K)."""
         if self.crop_shape is not None:
             images = random_crop(images, self.crop_shape) if self.training else center_crop(images, self.crop_shape)
-        return self.pool(self.trunk(images))
+        return self.pool(self.trunk(images)).flatten(1)  # (N, K, 2) -> (N, 2K)
 
 
 class ObservationEncoder(nn.Module):

@@ -33,14 +33,6 @@ def _num_prior(text: str) -> int | str:
         raise argparse.ArgumentTypeError(f"expected a number of windows or '{EVERY_WINDOW}', got {text!r}") from error
 
 
-def _flag(text: str) -> bool:
-    if text.lower() in ("1", "true", "yes", "on"):
-        return True
-    if text.lower() in ("0", "false", "no", "off"):
-        return False
-    raise argparse.ArgumentTypeError(f"expected true/false, got {text!r}")
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="skillret-retrieve",
@@ -89,7 +81,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = parser.add_argument_group("execution")
     run.add_argument(
-        "--exact", type=_flag, nargs="?", const=True, help="settle windows near the cut in float64 (default true)"
+        "--exact",
+        action=argparse.BooleanOptionalAction,
+        help="settle windows near the cut in float64, so the set equals a float64 brute force (default true)",
     )
     run.add_argument("--batch-size", type=int, help="windows per encoder forward pass (default 512)")
     run.add_argument(
