@@ -55,6 +55,17 @@ def test_stage_publishes_only_on_success_and_skips_when_done(tmp_path: Path) -> 
     assert not bad.output.exists()
 
 
+def test_a_finished_stage_built_by_another_command_is_refused_not_reused(tmp_path: Path) -> None:
+    """A config changed between runs (e.g. more play episodes) must not silently reuse the old artifact."""
+    runner = StageRunner(tmp_path / "out")
+    assert runner.run(writer_stage(tmp_path, "data")) is True
+    assert runner.run(writer_stage(tmp_path, "data")) is False  # same command: skipped
+    changed = writer_stage(tmp_path, "data", sleep=0.01)
+    with pytest.raises(RuntimeError, match=r"built with other options.*Delete .*data to rebuild"):
+        runner.run(changed)
+    assert sorted(p.name for p in changed.output.iterdir()) == ["a.txt", "b.txt"]  # nothing was touched
+
+
 def test_two_runners_sharing_a_folder_build_a_stage_once(tmp_path: Path) -> None:
     """Two pipeline processes on one output folder: the second waits for the stage lock, then skips the stage."""
     from concurrent.futures import ThreadPoolExecutor

@@ -88,17 +88,29 @@ class StageRunner:
         self.output_dir = output_dir
         self.logs = output_dir / "logs"
         self.timings_path = output_dir / "timings.json"
+        self.commands_path = output_dir / "commands.json"  # the command that built each finished stage
         self.env = {**os.environ, **(env or {})}
         self.cancel = threading.Event()
 
     def _log_path(self, stage: Stage) -> Path:
         return self.logs / (stage.name.replace("/", "__") + ".log")
 
-    def _record_time(self, stage: Stage, seconds: float) -> None:
-        with file_lock(self.timings_path.with_name(".timings.lock"), "timings.json"):
-            timings = json.loads(self.timings_path.read_text()) if self.timings_path.exists() else {}
-            timings[stage.name] = round(seconds, 1)
-            write_json_atomic(self.timings_path, timings)
+    def _record(self, path: Path, name: str, value: object) -> None:
+        with file_lock(path.with_name(f".{path.stem}.lock"), path.name):
+            entries = json.loads(path.read_text()) if path.exists() else {}
+            entries[name] = value
+            write_json_atomic(path, entries)
+
+    def _check_same_command(self, stage: Stage) -> None:
+        """An artifact built by another command (the config changed since) must not be reused silently."""
+        built = json.loads(self.commands_path.read_text()).get(stage.name) if self.commands_path.exists() else None
+        if built is not None and built != stage.command:
+            changed = sorted(set(stage.command) ^ set(built))
+            raise RuntimeError(
+                f"stage {stage.name}: {stage.output} was built with other options than the config asks for now "
+                f"(differing arguments: {changed}). Delete {stage.output} to rebuild it (and what was built from "
+                "it), or use another output_dir."
+            )
 
     def timing(self, name: str) -> float | None:
         if not self.timings_path.exists():
@@ -120,6 +132,7 @@ class StageRunner:
         if self.cancel.is_set():
             raise Cancelled(f"stage {stage.name} not started: another job of this run failed or was interrupted")
         if stage.done():
+            self._check_same_command(stage)
             log.info("[skip] %s (exists: %s)", stage.name, stage.output)
             return False
         _remove(stage.partial)
@@ -143,6 +156,7 @@ class StageRunner:
         if stage.after is not None:
             stage.after(stage.partial)
         os.replace(stage.partial, stage.output)
-        self._record_time(stage, seconds)
+        self._record(self.timings_path, stage.name, round(seconds, 1))
+        self._record(self.commands_path, stage.name, stage.command)
         log.info("[done] %s in %.0f s", stage.name, seconds)
         return True
