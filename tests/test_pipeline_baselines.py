@@ -23,7 +23,7 @@ BENCHMARK = Path(__file__).resolve().parents[1] / "configs" / "pipeline" / "benc
 
 def act_spec() -> TrainSpec:
     """The ACT options the benchmark really passes (one source: the pipeline config)."""
-    baselines = PipelineConfig.from_yaml(BENCHMARK).baselines
+    baselines = PipelineConfig.from_args(BENCHMARK).baselines
     assert "act" in baselines, f"{BENCHMARK} lost its `baselines.act` section"
     return baselines["act"]
 

@@ -23,7 +23,7 @@ PIPELINE = [CLI, "run", "--config", "configs/pipeline/smoke.yaml"]
 def test_smoke_pipeline_survives_a_kill_and_produces_every_artifact(tmp_path: Path) -> None:
     out = tmp_path / "run"
     published = tmp_path / "published"
-    overrides = [f"output_dir={out}", f"results_dir={published}"]
+    overrides = [f"--output_dir={out}", f"--results_dir={published}"]
     command = [*PIPELINE, *overrides]
     env = {**os.environ, "MUJOCO_GL": "egl", "HF_HUB_OFFLINE": "1"}
 
@@ -66,7 +66,7 @@ def test_smoke_pipeline_survives_a_kill_and_produces_every_artifact(tmp_path: Pa
     assert kept == {"cell.json", "eval_step2.json", "eval_step4.json", "retrieval_summary.json"}
 
     # Offline score of the trained cell on held-out demos (generated once), published beside the cell's eval JSONs.
-    heldout = [CLI, "heldout", "--config", "configs/pipeline/smoke.yaml", *overrides, "heldout.episodes=1"]
+    heldout = [CLI, "heldout", "--config", "configs/pipeline/smoke.yaml", *overrides, "--heldout.episodes=1"]
     scored = subprocess.run(heldout, cwd=REPO, env=env, capture_output=True, text=True, timeout=900)
     assert scored.returncode == 0, scored.stderr[-3000:]
     assert "[run ] heldout/seed7_n1/demos_breakfast" in scored.stderr

@@ -120,53 +120,56 @@ def test_killed_run_leaves_no_artifact_and_reruns_cleanly(tmp_path: Path) -> Non
 def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
     path = tmp_path / "p.yaml"
     path.write_text("tasks: [cook]\nevall: {n_episodes: 3}\n")
-    with pytest.raises(ValueError, match="unknown keys \\['evall'\\]"):
-        PipelineConfig.from_yaml(path)
+    with pytest.raises(ValueError, match="`evall` are not valid"):
+        PipelineConfig.from_args(path)
     path.write_text("methods: [skillret, act]\n")
     with pytest.raises(ValueError, match=r"`act` needs a `baselines\.act` section"):
-        PipelineConfig.from_yaml(path)
+        PipelineConfig.from_args(path)
     path.write_text("tasks: [brekfast]\n")
     with pytest.raises(ValueError, match="unknown tasks \\['brekfast'\\]"):
-        PipelineConfig.from_yaml(path)
+        PipelineConfig.from_args(path)
     path.write_text("data: {cameras: true}\n")
     with pytest.raises(ValueError, match=r"data\.cameras"):
-        PipelineConfig.from_yaml(path)
+        PipelineConfig.from_args(path)
     path.write_text("eval: {n_episodes: 2, batch_size: 4}\n")
     with pytest.raises(ValueError, match="batch_size"):
-        PipelineConfig.from_yaml(path)
-    cfg = PipelineConfig.from_yaml(path, {"eval.batch_size": 1, "policy.args": {"policy.horizon": 5}})
+        PipelineConfig.from_args(path)
+    cfg = PipelineConfig.from_args(path, ["--eval.batch_size=1", "--policy.args={policy.horizon: 5}"])
     assert cfg.eval.batch_size == 1 and cfg.policy.args == {"policy.horizon": 5}
     path.write_text("eval: {max_checkpoints: 0}\n")  # would slice [-0:], i.e. evaluate every checkpoint
     with pytest.raises(ValueError, match=r"`eval\.max_checkpoints` must be an integer >= 1 \(got 0\)"):
-        PipelineConfig.from_yaml(path)
+        PipelineConfig.from_args(path)
     path.write_text("heldout: {seed: 0}\n")  # data.seed is 0: the "held-out" demos would be the training ones
     with pytest.raises(ValueError, match=r"`heldout\.seed` equals `data\.seed`=0"):
-        PipelineConfig.from_yaml(path)
+        PipelineConfig.from_args(path)
     path.write_text("heldout: {episodes: 0}\n")
     with pytest.raises(ValueError, match=r"`heldout\.episodes` must be an integer >= 1 \(got 0\)"):
-        PipelineConfig.from_yaml(path)
+        PipelineConfig.from_args(path)
     path.write_text("skills: {config_path: configs/policy/cpu.jsn}\n")
     with pytest.raises(FileNotFoundError, match=r"`skills\.config_path` configs/policy/cpu\.jsn not found"):
-        PipelineConfig.from_yaml(path)
+        PipelineConfig.from_args(path)
+    path.write_text("skills: {steps: 1.5}\n")
+    with pytest.raises(ValueError, match=r"`skills\.steps`: Couldn't parse '1\.5' into an int"):
+        PipelineConfig.from_args(path)
 
 
 @pytest.mark.parametrize(
     ("override", "message"),
     [
-        ("skills.steps=abc", r"skills: `steps` must be of type int; got 'abc'"),
-        ("policy.steps=1.5", r"policy: `steps` must be of type int; got 1\.5"),
-        ("skills.steps=true", r"skills: `steps` must be of type int; got True"),
-        ("skills.batch_size=2.5", r"skills: `batch_size` must be of type int; got 2\.5"),
-        ("data.play_episodes=abc", r"data: `play_episodes` must be of type int"),
-        ("data.demo_episodes=-3", r"`data\.demo_episodes` must be >= 1 \(got -3\)"),
-        ("data.workers=abc", r"data: `workers` must be of type int"),
-        ("data.workers=-1", r"`data\.workers` must be >= 0"),
-        ("threads=abc", r"`threads` must be of type int \| None"),
-        ("threads=0", r"`threads` must be >= 1 or null"),
-        ("seeds=[abc]", r"`seeds` must be of type list\[int\]; got \['abc'\]"),
-        ("tasks=cook", r"`tasks` must be of type list\[str\]; got 'cook'"),
-        ("eval.n_episodes=ten", r"eval: `n_episodes` must be of type int"),
-        ("retrieval.args=5", r"retrieval: `args` must be of type dict"),
+        ("--skills.steps=abc", r"`skills\.steps`: Couldn't parse 'abc' into an int"),
+        ("--policy.steps=1.5", r"`policy\.steps`: Couldn't parse '1\.5' into an int"),
+        ("--skills.batch_size=2.5", r"`skills\.batch_size`: Couldn't parse '2\.5' into an int"),
+        ("--data.play_episodes=abc", r"`data\.play_episodes`: Couldn't parse 'abc'"),
+        ("--data.demo_episodes=-3", r"`data\.demo_episodes` must be >= 1 \(got -3\)"),
+        ("--data.workers=abc", r"`data\.workers`: Couldn't parse 'abc'"),
+        ("--data.workers=-1", r"`data\.workers` must be >= 0"),
+        ("--threads=abc", r"`threads`: Could not decode"),
+        ("--threads=0", r"`threads` must be >= 1 or null"),
+        ("--seeds=[abc]", r"`seeds\.0`: Couldn't parse 'abc' into an int"),
+        ("--tasks=cook", r"`tasks`: Failed when parsing value='cook'"),
+        ("--eval.n_episodes=ten", r"`eval\.n_episodes`: Couldn't parse 'ten'"),
+        ("--retrieval.args=5", r"`retrieval\.args`: Failed when parsing value='5'"),
+        ("eval.n_episodes=10", r"written as for lerobot-train, e\.g\. --eval\.n_episodes=10"),
     ],
 )
 def test_pipeline_cli_names_values_of_the_wrong_type(override: str, message: str) -> None:
@@ -179,7 +182,7 @@ def test_pipeline_cli_names_values_of_the_wrong_type(override: str, message: str
             "--config",
             "configs/pipeline/smoke.yaml",
             override,
-            "output_dir=/nonexistent/never-written",
+            "--output_dir=/nonexistent/never-written",
         ],
         capture_output=True,
         text=True,

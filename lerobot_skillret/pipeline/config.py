@@ -1,18 +1,18 @@
 """The pipeline's configuration file (YAML, see `configs/pipeline/`): what to generate, train, retrieve and evaluate.
 
-Every training stage is a stock `lerobot-train` run; its options are written exactly as on the command line
-(`policy.horizon: 10` becomes `--policy.horizon=10`), so a config file reads like the commands it runs.
+Parsed by draccus, as LeRobot's configs are: a YAML file plus `--key.sub=value` overrides. Every training stage is a
+stock `lerobot-train` run; its options are written exactly as on the command line (`policy.horizon: 10` becomes
+`--policy.horizon=10`), so a config file reads like the commands it runs.
 """
 
 from __future__ import annotations
 
-import types
-import typing
-from dataclasses import dataclass, field, fields
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
+import draccus
 
 from lerobot_skillret.kitchen.generate import DEFAULT_DEMOS, DEFAULT_PLAY_EPISODES, DEFAULT_PLAY_STEPS
 from lerobot_skillret.pipeline.methods import METHODS
@@ -145,79 +145,16 @@ class PipelineConfig:
                 )
 
     @classmethod
-    def from_yaml(cls, path: str | Path, overrides: dict[str, Any] | None = None) -> PipelineConfig:
-        path = Path(path)
+    def from_args(cls, config_path: str | Path, args: Sequence[str] = ()) -> PipelineConfig:
+        """The YAML file, then command-line overrides written as for lerobot-train (draccus): `--eval.n_episodes=10`,
+        `--tasks=[cook,breakfast]`, `--policy.args={policy.horizon: 5}`. Unknown keys and values of the wrong type
+        are refused with the key named."""
+        path = Path(config_path)
         if not path.is_file():
             raise FileNotFoundError(f"pipeline config {path} not found (see configs/pipeline/ for examples).")
-        raw = yaml.safe_load(path.read_text()) or {}
-        for dotted, value in (overrides or {}).items():
-            _set_dotted(raw, dotted, value)
-        return _build(cls, raw, where=str(path))
-
-
-def _set_dotted(tree: dict[str, Any], dotted: str, value: Any) -> None:
-    *parents, leaf = dotted.split(".")
-    for key in parents:
-        tree = tree.setdefault(key, {})
-    tree[leaf] = value
-
-
-def _build(cls: type, raw: dict[str, Any], where: str) -> Any:
-    """Build a dataclass from nested dicts, refusing unknown keys so typos do not pass silently."""
-    names = {f.name: f for f in fields(cls)}
-    unknown = sorted(set(raw) - set(names))
-    if unknown:
-        raise ValueError(f"{where}: unknown keys {unknown}; allowed: {sorted(names)}.")
-    kwargs: dict[str, Any] = {}
-    for name, value in raw.items():
-        kind = (
-            {
-                "data": DataSpec,
-                "skills": TrainSpec,
-                "policy": TrainSpec,
-                "retrieval": RetrievalSpec,
-                "eval": EvalSpec,
-                "heldout": HeldoutSpec,
-            }.get(name)
-            if cls is PipelineConfig
-            else None
-        )
-        if kind is not None:
-            kwargs[name] = _build(kind, value or {}, f"{where}:{name}")
-        elif cls is PipelineConfig and name == "baselines":
-            if not isinstance(value or {}, dict):
-                raise ValueError(f"{where}: `baselines` must map names to lerobot-train sections; got {value!r}.")
-            kwargs[name] = {k: _build(TrainSpec, v or {}, f"{where}:baselines.{k}") for k, v in (value or {}).items()}
-        else:
-            kwargs[name] = _checked(value, typing.get_type_hints(cls)[name], f"{where}: `{name}`")
-    return cls(**kwargs)
-
-
-def _checked(value: Any, annotation: Any, what: str) -> Any:
-    """`value` if it has the field's declared type (bools are not ints, ints are floats), else a clear error."""
-    if _matches(value, annotation):
-        return value
-    expected = str(annotation).replace("typing.", "") if typing.get_args(annotation) else annotation.__name__
-    raise ValueError(
-        f"{what} must be of type {expected}; got {value!r} ({type(value).__name__}). Correct it in the config file "
-        "or the command-line override."
-    )
-
-
-def _matches(value: Any, annotation: Any) -> bool:
-    if annotation is Any:
-        return True
-    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
-    if origin in (types.UnionType, typing.Union):
-        return any(_matches(value, arg) for arg in args)
-    if annotation is type(None):
-        return value is None
-    if origin is list:
-        return isinstance(value, list) and all(_matches(v, args[0]) for v in value)
-    if origin is dict:
-        return isinstance(value, dict)
-    if annotation is float:
-        return isinstance(value, int | float) and not isinstance(value, bool)
-    if annotation is int:
-        return isinstance(value, int) and not isinstance(value, bool)
-    return isinstance(value, annotation)
+        try:
+            return draccus.parse(cls, config_path=path, args=list(args))
+        except draccus.utils.DecodingError as err:
+            raise ValueError(f"{path}: {err}. Correct it in the config file or the command-line override.") from None
+        except draccus.utils.ParsingError as err:  # wraps what __post_init__ refused
+            raise (err.__cause__ or err) from None

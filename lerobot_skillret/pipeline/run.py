@@ -19,8 +19,6 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
-import yaml
-
 from lerobot_skillret.pipeline.config import PipelineConfig
 from lerobot_skillret.pipeline.methods import METHODS
 from lerobot_skillret.pipeline.plan import Cell, Plan
@@ -169,14 +167,7 @@ def _log_to_stderr() -> None:
     log.propagate = False
 
 
-def parse_overrides(items: list[str]) -> dict[str, object]:
-    out = {}
-    for item in items:
-        if "=" not in item:
-            raise SystemExit(f"override {item!r} must look like key.sub=value (e.g. eval.n_episodes=10)")
-        key, value = item.split("=", 1)
-        out[key] = yaml.safe_load(value)
-    return out
+CONFIG_HELP = "pipeline YAML (see configs/pipeline/)"
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -185,14 +176,15 @@ def main(argv: list[str] | None = None) -> None:
     )
     sub = parser.add_subparsers(dest="command", required=True)
     run_p = sub.add_parser("run", help="run or continue the pipeline described by a config file")
-    run_p.add_argument("--config", required=True, type=Path, help="pipeline YAML (see configs/pipeline/)")
-    run_p.add_argument("overrides", nargs="*", help="config overrides such as eval.n_episodes=10 output_dir=out/x")
+    overrides = "then any config key as for lerobot-train: --eval.n_episodes=10 --tasks=[cook] --output_dir=out/x"
+    run_p.add_argument("--config", "--config_path", dest="config", required=True, type=Path, help=CONFIG_HELP)
+    run_p.epilog = overrides
     heldout_p = sub.add_parser(
         "heldout",
         help="score the trained skillret variants of a config on held-out demos (offline; generates them once)",
     )
-    heldout_p.add_argument("--config", required=True, type=Path, help="pipeline YAML (see configs/pipeline/)")
-    heldout_p.add_argument("overrides", nargs="*", help="config overrides such as seeds=[2] output_dir=outputs/x")
+    heldout_p.add_argument("--config", "--config_path", dest="config", required=True, type=Path, help=CONFIG_HELP)
+    heldout_p.epilog = overrides
     table_p = sub.add_parser("table", help="markdown table + bar plot from a folder of finished cells")
     table_p.add_argument(
         "--results",
@@ -200,11 +192,16 @@ def main(argv: list[str] | None = None) -> None:
         default=Path("benchmarks/results/benchmark"),
         help="folder holding <method>/<task>/seed<s>/cell.json (default: benchmarks/results/benchmark)",
     )
-    args = parser.parse_args(argv)
+    args, rest = parser.parse_known_args(argv)
+    if args.command == "table" and rest:
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    bad = [item for item in rest if not item.startswith("--")]
+    if bad:  # the pre-draccus form `eval.n_episodes=10`
+        parser.error(f"overrides are written as for lerobot-train, e.g. --{bad[0]} (got {' '.join(bad)})")
     _log_to_stderr()
     if args.command in ("run", "heldout"):
         try:
-            cfg = PipelineConfig.from_yaml(args.config, parse_overrides(args.overrides))
+            cfg = PipelineConfig.from_args(args.config, rest)
             (run if args.command == "run" else heldout)(cfg)
         except (FileNotFoundError, ValueError, RuntimeError) as err:
             parser.exit(2, f"skillret-pipeline: {err}\n")
