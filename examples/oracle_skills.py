@@ -25,9 +25,14 @@ def main() -> None:
     parser.add_argument("--task", required=True, help="the demos' task (e.g. breakfast)")
     parser.add_argument("--episodes", type=int, default=5, help="demonstrations to try (default 5)")
     parser.add_argument("--slack", type=float, default=1.5, help="rollout length / demo length (default 1.5)")
+    parser.add_argument(
+        "--align",
+        action="store_true",
+        help="pick each latent by the robot's phase (nearest demo observation ahead) instead of the demo's clock",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
-    result = oracle_success(args.checkpoint, args.demos, args.task, args.episodes, args.slack)
+    result = oracle_success(args.checkpoint, args.demos, args.task, args.episodes, args.slack, args.align)
     print(
         f"oracle-skill success: {result['success']:.0%} of {result['episodes']} demos, sub-goals met "
         f"{result['goals_met']:.0%}, teacher-forced oracle action error {result['oracle_action_error']:.4f}"

@@ -41,16 +41,22 @@ def oracle_episode(
     length: int,
     initial_state: np.ndarray,
     slack: float,
+    align: bool = False,
 ) -> tuple[bool, list[str]]:
     """Oracle-skill rollout of the demonstration whose frames start at global index `first`; it may run `slack`
-    times the demonstration's length (past its end it keeps executing the last window's skill)."""
+    times the demonstration's length (past its end it keeps executing the last window's skill).
+
+    The latent is the demonstration's window at the rollout's step t (its clock), or with `align` the window, at
+    most 3 H steps ahead of the previous one, whose first observation is closest to the robot's current one (its
+    phase): a rollout that lags or leads the demonstration then still gets the skill for where it is."""
     observation, _ = env.reset(options={"initial_state": initial_state})
-    horizon, success = policy.config.horizon, False
+    horizon, success, at = policy.config.horizon, False, 0
     policy.reset()
     for t in range(int(length * slack)):
         batch = preprocess_observation({key: value[None] for key, value in observation.items()})
         if t % horizon == 0:
-            anchor = torch.tensor([first + min(t, length - 1)])
+            at = _closest_frame(policy, sampler, batch, first, at, min(at + 3 * horizon, length - 1)) if align else t
+            anchor = torch.tensor([first + min(at, length - 1)])
             policy.execute_skill(policy.encode_skill(sampler.gather(anchor))[0])
         observation, _, _, _, info = env.step(policy.select_action(batch)[0].numpy())
         if success := info["is_success"]:
@@ -58,8 +64,25 @@ def oracle_episode(
     return success, env.unmet_goals()
 
 
+def _closest_frame(policy: SkillRetPolicy, sampler: WindowSampler, batch: dict, first: int, lo: int, hi: int) -> int:
+    """The demonstration step in [lo, hi] whose normalised observation is nearest the current one (L2)."""
+    frames = torch.arange(first + lo, first + hi + 1)
+    keys = policy.low_dim_keys
+    demo = torch.cat(
+        [policy.normalizer.normalize(k, sampler.columns.td[k].as_subclass(torch.Tensor)[frames]) for k in keys], -1
+    )
+    now = torch.cat([policy.normalizer.normalize(k, batch[k].float()) for k in keys], -1)
+    return lo + int((demo - now).norm(dim=-1).argmin())
+
+
 def oracle_success(
-    checkpoint: Path, demos: Path, task: str, episodes: int | None = None, slack: float = 1.5, log=print
+    checkpoint: Path,
+    demos: Path,
+    task: str,
+    episodes: int | None = None,
+    slack: float = 1.5,
+    align: bool = False,
+    log=print,
 ) -> dict:
     """Oracle-skill success of `checkpoint` on the first `episodes` demonstrations of the dataset at `demos`, and
     the teacher-forced oracle action error on all of them (squared error summed over action dimensions, in the
@@ -78,7 +101,7 @@ def oracle_success(
             first = int(np.flatnonzero(episode_index == entry["episode_index"])[0])
             length = int(episode_end[first]) - first
             success, unmet = oracle_episode(
-                policy, env, sampler, first, length, np.asarray(entry["initial_state"]), slack
+                policy, env, sampler, first, length, np.asarray(entry["initial_state"]), slack, align
             )
             rows.append(OracleEpisode(entry["episode_index"], length, success, unmet))
             log(f"  demo {entry['episode_index']}: {length} steps, success={success}, unmet={unmet}")
