@@ -39,6 +39,7 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "skills"
 BIN = Path(sys.executable).parent
 CONFIG = ROOT / "configs" / "policy" / "cpu.json"
+PLAY_STEPS = 1000  # steps per play episode
 HELDOUT_SEED = 1  # demos seeds 1 * 1_000_003 + i: no training dataset here uses them (training demos use seed 0)
 LEVELS = {1: "1 step", 2: "2 steps", 3: "3+ steps"}
 
@@ -61,7 +62,7 @@ def play_data(work: Path, episodes: int) -> Path:
     if not (root / "meta" / "kitchen.json").is_file():
         print(f"generating {episodes} play episodes -> {root}", flush=True)
         cmd = [str(BIN / "skillret-generate"), "play", "--root", str(root), "--episodes", str(episodes)]
-        run([*cmd, "--steps-per-episode", "1000", "--overwrite"], work / "logs" / f"{root.name}.log")
+        run([*cmd, "--steps-per-episode", str(PLAY_STEPS), "--overwrite"], work / "logs" / f"{root.name}.log")
     return root
 
 
@@ -137,9 +138,9 @@ def evaluate(args: argparse.Namespace) -> None:
                     task=task,
                     level=TASKS[task].level,
                     prior_episodes=prior,
-                    prior_frames=prior * 1000,
+                    prior_frames=prior * PLAY_STEPS,
                     step=step,
-                    batch_size=64,
+                    batch_size=json.loads(CONFIG.read_text())["batch_size"],
                     train_wall_s=seconds,
                     eval_wall_s=round(time.monotonic() - start, 1),
                     heldout_seed=HELDOUT_SEED,
@@ -178,7 +179,9 @@ def table() -> None:
             mine = [r["success"] for r, t in zip(got, tasks, strict=True) if r and TASKS[t].level == lv]
             parts.append(f"{sum(mine) / len(mine):.0%}" if mine else "")
         errors = [r["oracle_action_error"] for r in got if r]
-        lines.append(f"| {prior * 1000:,} | {step:,} | " + " | ".join(parts) + f" | {sum(errors) / len(errors):.3f} |")
+        lines.append(
+            f"| {prior * PLAY_STEPS:,} | {step:,} | " + " | ".join(parts) + f" | {sum(errors) / len(errors):.3f} |"
+        )
     frames = RESULTS / "play_primitive_frames.json"
     if frames.is_file():
         counts = json.loads(frames.read_text())["frames"]
@@ -206,7 +209,7 @@ def _plot(rows: list[dict], tasks: list[str]) -> None:
             if mine:
                 steps, success = zip(*mine, strict=True)
                 ax.plot(steps, [100 * s for s in success], marker="o", label=f"{task} (L{TASKS[task].level})")
-        ax.set(title=f"prior {prior * 1000:,} frames", xlabel="stage-1 steps (batch 64)", ylim=(-5, 105))
+        ax.set(title=f"prior {prior * PLAY_STEPS:,} frames", xlabel="stage-1 steps", ylim=(-5, 105))
     axes[0][0].set_ylabel("oracle-skill success (%)")
     axes[0][-1].legend(fontsize=7, loc="upper left")
     fig.tight_layout()
@@ -219,7 +222,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ladder = [name for name, task in TASKS.items() if task.level <= 2 and name in _built_in()]
     parser.add_argument("--tasks", nargs="+", default=ladder, choices=sorted(TASKS), help="tasks to score")
-    parser.add_argument("--play-episodes", type=int, default=48, help="play episodes of 1,000 steps (default 48)")
+    parser.add_argument(
+        "--play-episodes", type=int, default=48, help=f"play episodes of {PLAY_STEPS} steps (default 48)"
+    )
     parser.add_argument("--prior-episodes", type=int, nargs="+", default=[48, 12], help="prior sizes to train on")
     parser.add_argument("--steps", type=int, default=9000, help="stage-1 steps per run (default 9000)")
     parser.add_argument("--save-every", type=int, default=3000, help="checkpoint period (default 3000)")
