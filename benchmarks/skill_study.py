@@ -33,13 +33,14 @@ from pathlib import Path
 import torch
 
 from lerobot_skillret.files import write_json_atomic, write_text_atomic
-from lerobot_skillret.kitchen.tasks import TASKS
+from lerobot_skillret.kitchen.tasks import LADDER, TASKS
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "skills"
 BIN = Path(sys.executable).parent
 CONFIG = ROOT / "configs" / "policy" / "cpu.json"
 PLAY_STEPS = 1000  # steps per play episode
+BATCH_SIZE = json.loads(CONFIG.read_text())["batch_size"]  # stage 1's, as the config trains it
 HELDOUT_SEED = 1  # demos seeds 1 * 1_000_003 + i: no training dataset here uses them (training demos use seed 0)
 LEVELS = {1: "1 step", 2: "2 steps", 3: "3+ steps"}
 
@@ -140,7 +141,7 @@ def evaluate(args: argparse.Namespace) -> None:
                     prior_episodes=prior,
                     prior_frames=prior * PLAY_STEPS,
                     step=step,
-                    batch_size=json.loads(CONFIG.read_text())["batch_size"],
+                    batch_size=BATCH_SIZE,
                     train_wall_s=seconds,
                     eval_wall_s=round(time.monotonic() - start, 1),
                     heldout_seed=HELDOUT_SEED,
@@ -220,7 +221,7 @@ def _plot(rows: list[dict], tasks: list[str]) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ladder = [name for name, task in TASKS.items() if task.level <= 2 and name in _built_in()]
+    ladder = [task.name for task in LADDER]  # the 1- and 2-step tasks
     parser.add_argument("--tasks", nargs="+", default=ladder, choices=sorted(TASKS), help="tasks to score")
     parser.add_argument(
         "--play-episodes", type=int, default=48, help=f"play episodes of {PLAY_STEPS} steps (default 48)"
@@ -238,12 +239,6 @@ def main() -> None:
     if max(args.prior_episodes) > args.play_episodes:
         parser.error(f"--prior-episodes {max(args.prior_episodes)} > --play-episodes {args.play_episodes}")
     evaluate(args)
-
-
-def _built_in() -> set[str]:
-    from lerobot_skillret.kitchen.play import BUILT_IN
-
-    return {task.name for task in BUILT_IN}
 
 
 if __name__ == "__main__":

@@ -17,9 +17,7 @@ from lerobot_skillret.kitchen import layout
 from lerobot_skillret.kitchen import predicates as P
 from lerobot_skillret.kitchen.primitives import Driver, OutOfSteps, run_primitive
 from lerobot_skillret.kitchen.sampling import PlacementError
-from lerobot_skillret.kitchen.tasks import LADDER, MULTI_STEP, Step
-
-BUILT_IN = (*LADDER, *MULTI_STEP)
+from lerobot_skillret.kitchen.tasks import BUILT_IN, Step
 
 ITEM_REGIONS = {
     **{f: ("plate", "placemat_left", "placemat_right", "pan", "pot", "table") for f in layout.FOODS},

@@ -244,7 +244,8 @@ def _registry(tasks: Iterable[Task]) -> dict[str, Task]:
     return registry
 
 
-TASKS: dict[str, Task] = _registry([*LADDER, *MULTI_STEP, *_plugin_tasks()])
+BUILT_IN: tuple[Task, ...] = (*LADDER, *MULTI_STEP)  # the tasks this package defines (play starts from their scenes)
+TASKS: dict[str, Task] = _registry([*BUILT_IN, *_plugin_tasks()])
 
 
 def get_task(name: str) -> Task:
