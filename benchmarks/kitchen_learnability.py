@@ -8,7 +8,8 @@ nor by nothing. Per task this script
    (state + environment state, mean/std-normalised) to a chunk of 8 future actions, MSE, AdamW with cosine decay,
    stopped when the epoch loss has not improved by 2 % over the last 100 epochs (or at --max-epochs),
 4. rolls it out from held-out initial states (env seeds from 100,000 up, which no generated dataset uses),
-   executing 4 actions of each chunk, and reports success and subtask progress.
+   executing 4 actions of each chunk, and reports success, subtask progress and sub-goals completed in a row
+   (per rollout too: steps taken and the goals left unmet, to see where it fails).
 
 It is a calibration tool for the benchmark, not one of the compared methods (those are LeRobot's policies and
 skillret, run by `skillret-pipeline`). Results land in `benchmarks/results/learnability/<task>.json` with the loss
@@ -129,26 +130,37 @@ def rollouts(model: BC, task: str, episodes: int) -> dict:
 
     env = KitchenEnv(task=task)
     s = model.stats  # type: ignore[attr-defined]
-    successes, progress = [], []
+    per_rollout = []
     for episode in range(episodes):
         obs, _ = env.reset(seed=EVAL_SEED0 + episode)
-        best, done, queue = 0.0, False, []
+        best, chain, steps, done, queue = 0.0, 0, 0, False, []
         while not done:
             if not queue:
                 x = torch.from_numpy(np.concatenate([obs["agent_pos"], obs["environment_state"]])).float()
                 chunk = model(((x - s["obs_mean"]) / s["obs_std"])[None])[0] * s["act_std"] + s["act_mean"]
                 queue = list(chunk[:EXECUTE].numpy())
             obs, reward, terminated, truncated, info = env.step(queue.pop(0))
-            best, done = max(best, reward), terminated or truncated
-        successes.append(bool(info["is_success"]))
-        progress.append(best)
-        print(f"  rollout {episode:3d}: success {successes[-1]}  progress {best:.2f}", flush=True)
+            best, chain, steps = max(best, reward), max(chain, info["in_a_row"]), steps + 1
+            done = terminated or truncated
+        row = {
+            "success": bool(info["is_success"]),
+            "progress": best,
+            "in_a_row": chain,
+            "steps": steps,
+            "unmet": env.unmet_goals(),
+        }
+        per_rollout.append(row)
+        print(f"  rollout {episode:3d}: {row}", flush=True)
     env.close()
+    goals = len(TASKS[task].goals)
     return {
         "rollouts": episodes,
         "eval_seeds": [EVAL_SEED0, EVAL_SEED0 + episodes - 1],
-        "success": sum(successes) / episodes,
-        "progress": float(np.mean(progress)),
+        "success": float(np.mean([r["success"] for r in per_rollout])),
+        "progress": float(np.mean([r["progress"] for r in per_rollout])),
+        # CALVIN's report: the share of rollouts that completed at least k sub-goals in a row, k = 1..goals
+        "in_a_row_at_least": [float(np.mean([r["in_a_row"] >= k for r in per_rollout])) for k in range(1, goals + 1)],
+        "per_rollout": per_rollout,
     }
 
 
@@ -186,14 +198,15 @@ def table(folder: Path) -> str:
     rows = sorted((json.loads(p.read_text()) for p in folder.glob("*.json")), key=lambda r: (r["level"], r["task"]))
     lines = [
         "| level | task | BC success | progress | rollouts | epochs | final loss | train min | demo length (median) "
-        "| expert |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| expert | in a row >= 1 / 2 / ... |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
+        chain = " / ".join(f"{100 * x:.0f}" for x in r.get("in_a_row_at_least", [])) or "-"
         lines.append(
             f"| {r['level']} | {r['task']} | {100 * r['success']:.0f} % | {100 * r['progress']:.0f} % | {r['rollouts']} "
             f"| {r['epochs']} | {r['final_loss']:.1e} | {r['train_s'] / 60:.1f} | {r['demos']['length_min_median_max'][1]} "
-            f"| {r['demos']['expert_success']} |"
+            f"| {r['demos']['expert_success']} | {chain} |"
         )
     return "\n".join(lines) + "\n"
 

@@ -88,16 +88,36 @@ def test_reward_is_the_fraction_of_goals_met():
     driver = Driver(env.scene, np.random.default_rng(0), on_step=lambda action, _label: actions.append(action))
     assert run_expert(driver, env._task)
     env.reset(seed=3)
-    rewards, terminated = [], False
+    rewards, chains, terminated = [], [], False
     for action in actions:
         _obs, reward, terminated, _truncated, info = env.step(action)
         rewards.append(reward)
+        chains.append(info["in_a_row"])
         if terminated:
             break
     assert terminated and info["is_success"] and rewards[-1] == 1.0
     assert sorted(set(rewards)) == pytest.approx([0.0, 1 / 3, 2 / 3, 1.0])
     assert all(r < 1.0 for r in rewards[:-1])
+    assert chains == [round(3 * r) for r in rewards]  # the expert completes the goals in their listed order
     env.close()
+
+
+def test_in_a_row_stops_at_the_first_unmet_goal():
+    """CALVIN's chain length: goals met at reset are skipped, a later goal met without the earlier one counts 0."""
+    from lerobot_skillret.kitchen.predicates import Predicate
+    from lerobot_skillret.kitchen.tasks import Task
+
+    def fixed(name: str, value: bool) -> Predicate:
+        return Predicate(name, lambda _scene: value)
+
+    def chain(now: tuple[bool, ...], at_reset: tuple[bool, ...]) -> int:
+        goals = tuple(fixed(f"g{i}", v) for i, v in enumerate(now))
+        return Task("t", "", goals, {}, 10, ()).in_a_row(None, at_reset)
+
+    assert chain((True, True, False), (False, False, False)) == 2
+    assert chain((False, True, True), (False, False, False)) == 0
+    assert chain((True, True, True), (False, True, False)) == 2  # the goal met at reset is not counted
+    assert chain((False, False), (False, False)) == 0
 
 
 def test_goals_met_at_reset_earn_no_progress():

@@ -2,7 +2,8 @@
 
 Observations come from `observations.build_observation`; success from the task's predicates; the episode
 terminates on success and is truncated at the task's `max_steps`. The reward is the fraction of the goals unmet at
-reset that are met now (1.0 on success), so a failed rollout still reports how far it got.
+reset that are met now (1.0 on success), so a failed rollout still reports how far it got; `info["in_a_row"]` is how
+many of them hold in the plan's order up to the first that does not (CALVIN's chain length).
 """
 
 from __future__ import annotations
@@ -86,7 +87,8 @@ class KitchenEnv(gym.Env):
         success = self._task.success(self.scene)
         reward = 1.0 if success else self._task.progress(self.scene, self._met_at_reset)
         truncated = self._steps >= self._max_episode_steps and not success
-        return self._obs(), reward, success, truncated, {"is_success": success}
+        info = {"is_success": success, "in_a_row": self._task.in_a_row(self.scene, self._met_at_reset)}
+        return self._obs(), reward, success, truncated, info
 
     def unmet_goals(self) -> list[str]:
         """Names of the task's sub-goals that do not hold now (diagnostics: where a rollout stopped)."""

@@ -35,7 +35,7 @@ class Step:
 class Task:
     name: str
     description: str
-    goals: tuple[P.Predicate, ...]
+    goals: tuple[P.Predicate, ...]  # in the plan's order: `in_a_row` counts completed sub-goals in this order
     # object -> where it starts: a region of layout.REGIONS, or "stove" / "shelf" / "drawer"; the others are parked
     init: dict[str, tuple[str, ...]]
     max_steps: int
@@ -53,6 +53,18 @@ class Task:
         `avg_max_reward` is subtask progress. Goals that hold from the start (cook's pan on the stove) earn nothing."""
         todo = [goal for goal, met in zip(self.goals, met_at_reset, strict=True) if not met]
         return sum(bool(goal(scene)) for goal in todo) / len(todo) if todo else 1.0
+
+    def in_a_row(self, scene: P.SceneState, met_at_reset: tuple[bool, ...]) -> int:
+        """Sub-goals completed in a row (CALVIN's chain length): the goals unmet at reset that hold now, counted in
+        order up to the first that does not. Progress counts the fifth goal without the first; this does not."""
+        count = 0
+        for goal, met in zip(self.goals, met_at_reset, strict=True):
+            if met:
+                continue
+            if not goal(scene):
+                break
+            count += 1
+        return count
 
     def unmet(self, scene: P.SceneState) -> list[str]:
         return [goal.name for goal in self.goals if not goal(scene)]
@@ -186,7 +198,7 @@ MULTI_STEP: tuple[Task, ...] = tuple(
             name="setting_up",
             description="Setting up: switch the light on, take the block out of the drawer and move the shelf blocks "
             "onto the table.",
-            goals=(P.switch_on("light"), *(P.on_table(b) for b in layout.BLOCKS)),
+            goals=(P.switch_on("light"), *(P.on_table(b) for b in (B2, B3, B1))),
             init={B1: ("drawer",), B2: ("shelf",), B3: ("shelf",)},
             max_steps=900,
             # The open drawer's handle overhangs the shelf: clear the shelf first, then open the drawer.
