@@ -4,6 +4,8 @@ Training step = the policy's whole forward (including the windows it fetches its
 retrieved windows) + backward + Adam step, on low-dim observations shaped like the kitchen's, batches as
 lerobot-train gives them (loading the batch itself is not timed). select_action is timed per step on CPU, batch 1,
 low-dim, against ACT with LeRobot's default sizes on the same observation (default chunking, and chunk = H).
+It also prints where a stage-1 step spends its time and how fast its LSTM kernels run against a dense matmul of the
+same size on the same core: the bound on what a faster implementation at the same width can gain.
 
 Run: `.venv/bin/python benchmarks/policy_speed.py` (~2-4 min on 2 cores; `--skip-paper` for ~1 min).
 """
@@ -95,6 +97,91 @@ def time_training(policy: SkillRetPolicy, data: list[dict], warmup: int = 2) -> 
     return statistics.median(times)
 
 
+def lstm_flops(policy: SkillRetPolicy, batch: dict) -> int:
+    """Floating-point operations of every nn.LSTM in one training step: the forward's multiply-adds
+    (2 * 4h * (in + h) per row, step and layer), counted from the shapes each LSTM sees, and a backward taken as
+    twice the forward (gradients for inputs and weights)."""
+    total = 0
+
+    def count(module: torch.nn.LSTM, inputs: tuple) -> None:
+        nonlocal total
+        rows, steps = inputs[0].shape[:2]
+        width, hidden = module.input_size, module.hidden_size
+        for layer in range(module.num_layers):
+            total += 2 * 4 * hidden * ((width if layer == 0 else hidden) + hidden) * rows * steps
+
+    lstms = [m for m in policy.modules() if isinstance(m, torch.nn.LSTM)]
+    hooks = [m.register_forward_pre_hook(count) for m in lstms]
+    try:
+        policy.forward(batch)
+    finally:
+        for hook in hooks:
+            hook.remove()
+    return 3 * total
+
+
+def matmul_gflops(rows: int = 1280, inner: int = 263, cols: int = 512, repeats: int = 200) -> float:
+    """GFLOP/s of a float32 matmul shaped like an LSTM layer's input projection: what this core attains on dense
+    work of that size (the yardstick for the LSTM kernels)."""
+    a, b = torch.randn(rows, inner), torch.randn(inner, cols)
+    for _ in range(10):
+        a @ b
+    start = time.perf_counter()
+    for _ in range(repeats):
+        a @ b
+    return 2 * rows * inner * cols * repeats / (time.perf_counter() - start) / 1e9
+
+
+def stage1_breakdown(policy: SkillRetPolicy, data: list[dict]) -> None:
+    """Where a stage-1 step spends its time (torch.profiler, self CPU time) and how fast its LSTM kernels run.
+
+    Why: the step is bounded by the LSTMs' arithmetic when their kernels already run near what the core attains on a
+    dense matmul; then only less LSTM work per window (or other hardware) makes it faster."""
+    from torch.profiler import ProfilerActivity, profile
+
+    optimizer = torch.optim.Adam(policy.get_optim_params())
+    policy.train()
+
+    def step(batch: dict) -> None:
+        loss, _ = policy.forward(batch)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+
+    for batch in data[:2]:
+        step(batch)
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for batch in data[2:]:
+            step(batch)
+    groups = {"LSTM kernels (oneDNN rnn, fwd + bwd)": "rnn", "matmuls (MLP heads, encoders)": "mm", "Adam": "Adam"}
+    shares = dict.fromkeys(groups, 0.0)
+    total = sum(e.self_cpu_time_total for e in prof.key_averages())
+    for event in prof.key_averages():
+        name = event.key
+        if "rnn" in name or "lstm" in name:
+            shares["LSTM kernels (oneDNN rnn, fwd + bwd)"] += event.self_cpu_time_total
+        elif name in ("aten::mm", "aten::addmm", "aten::bmm"):
+            shares["matmuls (MLP heads, encoders)"] += event.self_cpu_time_total
+        elif (
+            "Adam" in name
+            or name.startswith("aten::_foreach")
+            or name in ("aten::addcdiv_", "aten::lerp_", "aten::sqrt")
+        ):
+            shares["Adam"] += event.self_cpu_time_total
+    steps = len(data) - 2
+    print("\n== where a stage-1 step (cpu config, batch 64) spends its time ==")
+    for label, value in shares.items():
+        print(f"{label:>38}: {100 * value / total:5.1f} %")
+    print(f"{'the rest (autograd, gathers, pointwise)':>38}: {100 * (total - sum(shares.values())) / total:5.1f} %")
+    lstm_s = shares["LSTM kernels (oneDNN rnn, fwd + bwd)"] / 1e6 / steps
+    achieved = lstm_flops(policy, data[0]) / lstm_s / 1e9
+    attainable = matmul_gflops()
+    print(
+        f"LSTM kernels: {1e3 * lstm_s:.1f} ms per step at {achieved:.1f} GFLOP/s; a float32 matmul of an LSTM layer's "
+        f"size on this core: {attainable:.1f} GFLOP/s ({100 * achieved / attainable:.0f} % of it)"
+    )
+
+
 def time_select_action(policy, observations: list[dict]) -> float:
     """Mean seconds per select_action call over an episode-like sequence (reset first)."""
     policy.reset()
@@ -162,6 +249,9 @@ def main() -> None:
             print(
                 f"{name:>6} config, batch {batch_size}: stage 1 {1e3 * t1:7.1f} ms/step   stage 2 {1e3 * t2:7.1f} ms/step"
             )
+
+        cpu = make_policy(policy_fields("cpu"), prior, "bench/prior")
+        stage1_breakdown(cpu, batches(cpu, prior, "bench/prior", 64, 8))
 
         print("\n== select_action latency (CPU, batch 1, low-dim; mean per step) ==")
         skill = make_policy(policy_fields("cpu"), prior, "bench/prior").eval()
