@@ -179,6 +179,8 @@ def run_task(task: str, args: argparse.Namespace) -> dict:
     print(f"{task}: {stats}", flush=True)
     model, training = train(*chunk_dataset(columns), args.max_epochs, args.batch_size, args.seed)
     print(f"{task}: trained {training['epochs']} epochs in {training['train_s']} s", flush=True)
+    weights = args.data_dir / f"bc_{task}_seed{args.seed}.pt"  # kept for diagnosing its rollouts
+    write_atomic(weights, lambda tmp: torch.save({"model": model.state_dict(), "stats": model.stats}, tmp))
     start = time.monotonic()
     evaluation = rollouts(model, task, args.rollouts)
     return {

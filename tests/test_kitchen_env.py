@@ -196,3 +196,22 @@ def test_lerobot_eval_names_an_unknown_task():
     )
     assert result.returncode != 0
     assert "Unknown panda_kitchen task 'no_such_task'" in result.stderr and "not found" not in result.stderr
+
+
+def test_item_geoms_take_their_sizes_from_layout():
+    """layout.ITEMS is the one source of item sizes: the simulated geoms match it (the grasp heights depend on it)."""
+    import mujoco
+
+    from lerobot_skillret.kitchen import layout
+    from lerobot_skillret.kitchen.gym_env import KitchenEnv
+
+    env = KitchenEnv("bread_on_plate")
+    model = env.scene.sim.model
+    for name, spec in layout.ITEMS.items():
+        geom = model.geom_name2id(f"{name}_geom")
+        hx, hy, hz = spec.half
+        cylinder = model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_CYLINDER  # its size is (radius, half-height)
+        expected = [hx, hz, 0.0] if cylinder else [hx, hy, hz]
+        size = model.geom_size[geom]
+        assert np.allclose(size, expected), (name, size, expected)
+    env.close()

@@ -91,6 +91,10 @@ class KitchenScene(ManipulationEnv):
         )
         for fname in ("items.xml", "vessels.xml"):
             for body in _load_asset(fname, "").find("./worldbody"):
+                if body.get("name") in layout.ITEMS:  # item sizes live in layout.ITEMS only
+                    geom, (hx, _hy, hz) = body.find("geom"), layout.ITEMS[body.get("name")].half
+                    size = [hx, hz] if geom.get("type") == "cylinder" else layout.ITEMS[body.get("name")].half
+                    geom.set("size", array_to_string(size))
                 arena.worldbody.append(body)
         self.model = ManipulationTask(mujoco_arena=arena, mujoco_robots=[robot.robot_model for robot in self.robots])
 
