@@ -69,8 +69,8 @@ class ItemSpec:
 # Heights set the grasp's tolerance: a learner that closes the fingers 1-2 cm high still grips a 5 cm item but only
 # pinches the top of a 3 cm one. The bread was 3 cm tall; at 5 cm converged BC on bread_on_plate went from 44-58 % to
 # 68-70 % (benchmarks/kitchen_learnability.py). The butter is 5 cm too (was 2.4 cm), which did not change
-# bread_and_butter: BC lifts it in 1 of 20 rollouts either way, as it goes back to the bread instead (the chain, not
-# the grasp, fails there). A 4 cm fish did not help fish_in_pan (46 % against 56-60 %), so it stayed 2.8 cm.
+# bread_and_butter: BC lifts it in 1 of 20 rollouts either way and often moves the bread off the plate again (the
+# chain, not the grasp, fails there). A 4 cm fish did not help fish_in_pan (46 % against 56-60 %), so it stayed 2.8 cm.
 ITEMS: dict[str, ItemSpec] = {
     "bread": ItemSpec((0.035, 0.022, 0.025), 0.045),
     "butter": ItemSpec((0.022, 0.016, 0.025), 0.035),
