@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from lerobot_skillret.kitchen.fingerprint import kitchen_fingerprint
 from lerobot_skillret.pipeline.config import PipelineConfig, TrainSpec
 from lerobot_skillret.pipeline.methods import METHODS
 from lerobot_skillret.pipeline.stages import Stage
@@ -86,6 +87,7 @@ class Plan:
             str(d.play_steps),
             *self._generation_args(d.seed),
         ]
+        play.tags = (f"kitchen={kitchen_fingerprint()}",)
         stages = [play] if self.needs_prior() else []
         for task in self.cfg.tasks:
             stages.append(self._demos_stage(f"data/demos_{task}", self.demos_root(task), task, d.demo_episodes, d.seed))
@@ -109,6 +111,7 @@ class Plan:
             str(episodes),
             *self._generation_args(seed),
         ]
+        stage.tags = (f"kitchen={kitchen_fingerprint()}",)  # demos of an older kitchen are not reused
         return stage
 
     def needs_prior(self) -> bool:

@@ -36,6 +36,12 @@ class Stage:
     output: Path
     command: list[str] = field(default_factory=list)
     after: Callable[[Path], None] | None = None  # runs on the partial artifact before it is published
+    # what else the artifact depends on (e.g. the kitchen's fingerprint): recorded and checked with the command
+    tags: tuple[str, ...] = ()
+
+    @property
+    def identity(self) -> list[str]:
+        return [*self.command, *self.tags]
 
     @property
     def partial(self) -> Path:
@@ -102,14 +108,15 @@ class StageRunner:
             write_json_atomic(path, entries)
 
     def _check_same_command(self, stage: Stage) -> None:
-        """An artifact built by another command (the config changed since) must not be reused silently."""
+        """An artifact built by another command (the config changed since), or from other inputs than its command
+        names (its tags: e.g. the kitchen's files changed since), must not be reused silently."""
         built = json.loads(self.commands_path.read_text()).get(stage.name) if self.commands_path.exists() else None
-        if built is not None and built != stage.command:
-            changed = sorted(set(stage.command) ^ set(built))
+        if built is not None and built != stage.identity:
+            changed = sorted(set(stage.identity) ^ set(built))
             raise RuntimeError(
-                f"stage {stage.name}: {stage.output} was built with other options than the config asks for now "
-                f"(differing arguments: {changed}). Delete {stage.output} to rebuild it (and what was built from "
-                "it), or use another output_dir."
+                f"stage {stage.name}: {stage.output} was built with other options or inputs than this run has "
+                f"(differing: {changed}). Delete {stage.output} to rebuild it (and what was built from it), or use "
+                "another output_dir."
             )
 
     def timing(self, name: str) -> float | None:
@@ -157,6 +164,6 @@ class StageRunner:
             stage.after(stage.partial)
         os.replace(stage.partial, stage.output)
         self._record(self.timings_path, stage.name, round(seconds, 1))
-        self._record(self.commands_path, stage.name, stage.command)
+        self._record(self.commands_path, stage.name, stage.identity)
         log.info("[done] %s in %.0f s", stage.name, seconds)
         return True
