@@ -4,16 +4,20 @@ A comparison of methods means something only on tasks where imitation is measura
 nor by nothing. Per task this script
 1. generates the target demonstrations (`skillret-generate demos`, skipped when they exist),
 2. reports their statistics (episode lengths, saturated position actions, the gripper label set),
-3. trains a plain BC reference to a plateau: an MLP (3 x 512, LayerNorm, GELU) from the current observation
-   (state + environment state, mean/std-normalised) to a chunk of 8 future actions, MSE, AdamW with cosine decay,
-   stopped when the epoch loss has not improved by 2 % over the last 100 epochs (or at --max-epochs),
-4. rolls it out from held-out initial states (env seeds from 100,000 up, which no generated dataset uses),
-   executing 4 actions of each chunk, and reports success, subtask progress and sub-goals completed in a row
-   (per rollout too: steps taken and the goals left unmet, to see where it fails).
+3. trains a plain BC reference to a plateau on state + environment state (mean/std-normalised), MSE, AdamW with
+   cosine decay, stopped when the epoch loss has not improved by 2 % over the last 100 epochs (or at --max-epochs,
+   or at --max-train-minutes); `--reference` picks the model:
+   - `mlp`: an MLP (3 x 512, LayerNorm, GELU) from the current observation to a chunk of 8 future actions, of
+     which 4 run before it re-plans;
+   - `rnn`: robomimic's BC-RNN, the seed's own target-only baseline (2-layer LSTM, 400 units, sequences of 10,
+     batch 100), which remembers the last steps: what a chain needs to tell "just placed" from "about to grasp";
+4. rolls it out from held-out initial states (env seeds from 100,000 up, which no generated dataset uses) and
+   reports success, subtask progress and sub-goals completed in a row (per rollout too: steps taken and the goals
+   left unmet, to see where it fails).
 
 It is a calibration tool for the benchmark, not one of the compared methods (those are LeRobot's policies and
-skillret, run by `skillret-pipeline`). Results land in `benchmarks/results/learnability/<task>.json` with the loss
-curve, one task at a time: a killed run keeps the finished tasks, and a re-run skips them (--force redoes them).
+skillret, run by `skillret-pipeline`). Results land in `benchmarks/results/learnability/<task>.json` (`bc_rnn/`
+below it for the RNN) with the loss curve, one task at a time: a killed run keeps the finished tasks, and a re-run skips them (--force redoes them).
 
     MUJOCO_GL=egl python benchmarks/kitchen_learnability.py --tasks bread_on_plate pan_on_stove
     python benchmarks/kitchen_learnability.py --table     # the markdown table of every stored result
@@ -42,7 +46,8 @@ from lerobot_skillret.kitchen.tasks import TASKS
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results" / "learnability"
 OBS_KEYS = ("observation.state", "observation.environment_state")
-CHUNK, EXECUTE = 8, 4
+CHUNK, EXECUTE = 8, 4  # the MLP's action chunk and how much of it runs before re-planning
+RNN_HORIZON = 10  # robomimic's BC-RNN sequence length (and the seed's F)
 EVAL_SEED0 = 100_000  # held-out initial states: generated datasets use seeds seed * 1_000_003 + i, i < 3 * episodes
 PLATEAU_EPOCHS, PLATEAU_GAIN = 100, 0.02
 
@@ -64,17 +69,24 @@ def demo_statistics(columns: EpisodeColumns, root: Path) -> dict:
     }
 
 
-def chunk_dataset(columns: EpisodeColumns) -> tuple[torch.Tensor, torch.Tensor]:
-    """(observations (N, D), action chunks (N, CHUNK, A)); steps past an episode's end repeat its last action."""
+def frames(columns: EpisodeColumns) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(observations (N, D), actions (N, A), each frame's episode end (N,)) of the demos."""
     td = columns.td
     obs = torch.cat([td[k].as_subclass(torch.Tensor).float() for k in OBS_KEYS], dim=-1)
-    action = td["action"].as_subclass(torch.Tensor).float()
-    end = td["episode_end"].as_subclass(torch.Tensor)
-    index = torch.arange(len(columns))[:, None] + torch.arange(CHUNK)[None, :]
-    return obs, action[torch.minimum(index, end[:, None] - 1)]
+    return obs, td["action"].as_subclass(torch.Tensor).float(), td["episode_end"].as_subclass(torch.Tensor)
 
 
-class BC(nn.Module):
+def ahead(end: torch.Tensor, length: int) -> torch.Tensor:
+    """(N, length) frame indices t, t+1, ...; steps past an episode's end repeat its last frame (robomimic's padding)."""
+    index = torch.arange(len(end))[:, None] + torch.arange(length)[None, :]
+    return torch.minimum(index, end[:, None] - 1)
+
+
+class MLP(nn.Module):
+    """The MLP reference: current observation -> a chunk of CHUNK future actions; executes EXECUTE of them."""
+
+    name = "mlp"
+
     def __init__(self, obs_dim: int, action_dim: int, width: int = 512) -> None:
         super().__init__()
         layers: list[nn.Module] = []
@@ -86,23 +98,86 @@ class BC(nn.Module):
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         return self.net(obs).view(-1, CHUNK, self.action_dim)
 
+    @staticmethod
+    def examples(obs: torch.Tensor, action: torch.Tensor, end: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        return obs, action[ahead(end, CHUNK)]
 
-def train(obs: torch.Tensor, chunks: torch.Tensor, max_epochs: int, batch: int, seed: int) -> tuple[BC, dict]:
-    torch.manual_seed(seed)
+    def actor(self):
+        """A stateful closure: observation (D,) -> the next action; re-plans every EXECUTE steps."""
+        queue: list[np.ndarray] = []
+
+        def act(x: torch.Tensor) -> np.ndarray:
+            if not queue:
+                queue.extend(self(x[None])[0, :EXECUTE].numpy())
+            return queue.pop(0)
+
+        return act
+
+
+class RNN(nn.Module):
+    """robomimic's BC-RNN, the seed's target-only baseline: a 2-layer LSTM (400 units) over sequences of RNN_HORIZON
+    observations, a linear head to each step's action. In a rollout the hidden state is carried from step to step and
+    reset every RNN_HORIZON steps, as robomimic does, so it never runs longer than it was trained for. Unlike robomimic
+    (GMM head for human data) the head is deterministic (MSE): the scripted expert is unimodal."""
+
+    name = "rnn"
+
+    def __init__(self, obs_dim: int, action_dim: int, width: int = 400) -> None:
+        super().__init__()
+        self.lstm = nn.LSTM(obs_dim, width, num_layers=2, batch_first=True)
+        self.head = nn.Linear(width, action_dim)
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        return self.head(self.lstm(obs)[0])
+
+    @staticmethod
+    def examples(obs: torch.Tensor, action: torch.Tensor, end: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        index = ahead(end, RNN_HORIZON)
+        return obs[index], action[index]
+
+    def actor(self):
+        memory: dict = {"state": None, "steps": 0}
+
+        def act(x: torch.Tensor) -> np.ndarray:
+            if memory["steps"] % RNN_HORIZON == 0:
+                memory["state"] = None
+            out, memory["state"] = self.lstm(x[None, None], memory["state"])
+            memory["steps"] += 1
+            return self.head(out)[0, 0].numpy()
+
+        return act
+
+
+REFERENCES = {model.name: model for model in (MLP, RNN)}
+DESCRIPTIONS = {
+    "mlp": f"MLP 3x512, chunk {CHUNK}, execute {EXECUTE}",
+    "rnn": f"BC-RNN: LSTM 2x400 over {RNN_HORIZON} steps, hidden state reset every {RNN_HORIZON}",
+}
+DEFAULT_BATCH = {"mlp": 512, "rnn": 100}  # rnn: robomimic's BC-RNN batch
+
+
+def train(
+    model: nn.Module, obs, action, end, max_epochs: int, batch: int, lr: float, max_minutes: float
+) -> tuple[nn.Module, dict]:
+    """MSE on mean/std-normalised observations and actions, AdamW with cosine decay over `max_epochs`, until the
+    plateau rule (or the wall-time cap, recorded as `stopped_by`) stops it. The statistics are the demo frames' and
+    travel with the model (`model.stats`)."""
     stats = {
         "obs_mean": obs.mean(0),
         "obs_std": obs.std(0).clamp_min(1e-3),
-        "act_mean": chunks.mean((0, 1)),
-        "act_std": chunks.std((0, 1)).clamp_min(1e-3),
+        "act_mean": action.mean(0),
+        "act_std": action.std(0).clamp_min(1e-3),
     }
-    x = (obs - stats["obs_mean"]) / stats["obs_std"]
-    y = (chunks - stats["act_mean"]) / stats["act_std"]
-    model = BC(obs.shape[1], chunks.shape[2])
+    x, y = model.examples(
+        (obs - stats["obs_mean"]) / stats["obs_std"], (action - stats["act_mean"]) / stats["act_std"], end
+    )
     steps_per_epoch = math.ceil(len(x) / batch)
-    optimizer = torch.optim.AdamW(model.parameters(), lr=1e-3, weight_decay=1e-4)
+    optimizer = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, max_epochs * steps_per_epoch)
     curve: list[float] = []
     start = time.monotonic()
+    model.train()
+    stopped_by = "max_epochs"
     for epoch in range(max_epochs):
         order, total = torch.randperm(len(x)), 0.0
         for i in range(steps_per_epoch):
@@ -117,15 +192,20 @@ def train(obs: torch.Tensor, chunks: torch.Tensor, max_epochs: int, batch: int, 
         if epoch >= 2 * PLATEAU_EPOCHS:
             before, now = min(curve[:-PLATEAU_EPOCHS]), min(curve[-PLATEAU_EPOCHS:])
             if now > before * (1 - PLATEAU_GAIN):
+                stopped_by = "plateau"
                 break
+        if time.monotonic() - start > 60 * max_minutes:
+            stopped_by = f"wall time ({max_minutes} min)"
+            break
         if epoch % 50 == 0:
-            print(f"  epoch {epoch:4d}  loss {curve[-1]:.2e}", flush=True)
+            print(f"  epoch {epoch:4d}  loss {curve[-1]:.2e}  {time.monotonic() - start:.0f} s", flush=True)
     model.stats = stats  # type: ignore[attr-defined]
-    return model.eval(), {"epochs": len(curve), "train_s": round(time.monotonic() - start, 1), "loss_curve": curve}
+    elapsed = round(time.monotonic() - start, 1)
+    return model.eval(), {"epochs": len(curve), "train_s": elapsed, "stopped_by": stopped_by, "loss_curve": curve}
 
 
 @torch.no_grad()
-def rollouts(model: BC, task: str, episodes: int) -> dict:
+def rollouts(model: nn.Module, task: str, episodes: int) -> dict:
     from lerobot_skillret.kitchen.gym_env import KitchenEnv
 
     env = KitchenEnv(task=task)
@@ -133,13 +213,12 @@ def rollouts(model: BC, task: str, episodes: int) -> dict:
     per_rollout = []
     for episode in range(episodes):
         obs, _ = env.reset(seed=EVAL_SEED0 + episode)
-        best, chain, steps, done, queue = 0.0, 0, 0, False, []
+        act = model.actor()
+        best, chain, steps, done = 0.0, 0, 0, False
         while not done:
-            if not queue:
-                x = torch.from_numpy(np.concatenate([obs["agent_pos"], obs["environment_state"]])).float()
-                chunk = model(((x - s["obs_mean"]) / s["obs_std"])[None])[0] * s["act_std"] + s["act_mean"]
-                queue = list(chunk[:EXECUTE].numpy())
-            obs, reward, terminated, truncated, info = env.step(queue.pop(0))
+            x = torch.from_numpy(np.concatenate([obs["agent_pos"], obs["environment_state"]])).float()
+            action = act((x - s["obs_mean"]) / s["obs_std"]) * s["act_std"].numpy() + s["act_mean"].numpy()
+            obs, reward, terminated, truncated, info = env.step(action)
             best, chain, steps = max(best, reward), max(chain, info["in_a_row"]), steps + 1
             done = terminated or truncated
         row = {
@@ -177,9 +256,14 @@ def run_task(task: str, args: argparse.Namespace) -> dict:
     columns = EpisodeColumns.from_dataset(f"local/kitchen_demos_{task}", root)
     stats = demo_statistics(columns, root)
     print(f"{task}: {stats}", flush=True)
-    model, training = train(*chunk_dataset(columns), args.max_epochs, args.batch_size, args.seed)
-    print(f"{task}: trained {training['epochs']} epochs in {training['train_s']} s", flush=True)
-    weights = args.data_dir / f"bc_{task}_seed{args.seed}.pt"  # kept for diagnosing its rollouts
+    torch.manual_seed(args.seed)
+    obs, action, end = frames(columns)
+    model = REFERENCES[args.reference](obs.shape[1], action.shape[1])
+    model, training = train(model, obs, action, end, args.max_epochs, args.batch_size, args.lr, args.max_train_minutes)
+    print(
+        f"{task}: trained {training['epochs']} epochs in {training['train_s']} s ({training['stopped_by']})", flush=True
+    )
+    weights = args.data_dir / f"bc_{args.reference}_{task}_seed{args.seed}.pt"  # kept for diagnosing its rollouts
     write_atomic(weights, lambda tmp: torch.save({"model": model.state_dict(), "stats": model.stats}, tmp))
     start = time.monotonic()
     evaluation = rollouts(model, task, args.rollouts)
@@ -187,18 +271,29 @@ def run_task(task: str, args: argparse.Namespace) -> dict:
         "task": task,
         "level": TASKS[task].level,
         "demos": stats,
-        "reference": f"MLP 3x512, chunk {CHUNK}, execute {EXECUTE}, batch {args.batch_size}, seed {args.seed}",
+        "reference": DESCRIPTIONS[args.reference] + f", batch {args.batch_size}, lr {args.lr}, seed {args.seed}",
         **{k: v for k, v in training.items() if k != "loss_curve"},
         "final_loss": training["loss_curve"][-1],
-        "loss_curve_every_10_epochs": training["loss_curve"][::10],
+        **curve_points(training["loss_curve"]),
         "eval_s": round(time.monotonic() - start, 1),
         **evaluation,
     }
 
 
+def curve_points(curve: list[float], points: int = 100) -> dict:
+    """About `points` (epoch, loss) samples of a loss curve, its last epoch included: enough to see it flatten."""
+    epochs = list(range(0, len(curve), max(1, len(curve) // points)))
+    epochs += [len(curve) - 1] if epochs[-1] != len(curve) - 1 else []
+    return {"loss_curve_epochs": epochs, "loss_curve": [curve[e] for e in epochs]}
+
+
 def table(folder: Path) -> str:
     rows = sorted((json.loads(p.read_text()) for p in folder.glob("*.json")), key=lambda r: (r["level"], r["task"]))
+    references = sorted({r["reference"].split(", batch")[0] for r in rows})
     lines = [
+        f"Reference: {'; '.join(references)}. Epochs marked * stopped at a cap (epochs or wall time), not at the "
+        "plateau rule: check its loss curve.",
+        "",
         "| level | task | BC success | progress | rollouts | epochs | final loss | train min | demo length (median) "
         "| expert | in a row >= 1 / 2 / ... |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
@@ -207,7 +302,7 @@ def table(folder: Path) -> str:
         chain = " / ".join(f"{100 * x:.0f}" for x in r.get("in_a_row_at_least", [])) or "-"
         lines.append(
             f"| {r['level']} | {r['task']} | {100 * r['success']:.0f} % | {100 * r['progress']:.0f} % | {r['rollouts']} "
-            f"| {r['epochs']} | {r['final_loss']:.1e} | {r['train_s'] / 60:.1f} | {r['demos']['length_min_median_max'][1]} "
+            f"| {r['epochs']}{'' if r.get('stopped_by', 'plateau') == 'plateau' else '*'} | {r['final_loss']:.1e} | {r['train_s'] / 60:.1f} | {r['demos']['length_min_median_max'][1]} "
             f"| {r['demos']['expert_success']} | {chain} |"
         )
     return "\n".join(lines) + "\n"
@@ -223,9 +318,9 @@ def plot_curves(folder: Path) -> Path:
     figure, axis = plt.subplots(figsize=(7, 4))
     for path in sorted(folder.glob("*.json")):
         r = json.loads(path.read_text())
-        curve = r["loss_curve_every_10_epochs"]
-        axis.plot([10 * i for i in range(len(curve))], curve, label=f"{r['task']} (level {r['level']})")
-    axis.set(yscale="log", xlabel="epoch", ylabel="training loss (normalised MSE)", title="BC reference per task")
+        axis.plot(r["loss_curve_epochs"], r["loss_curve"], label=f"{r['task']} (level {r['level']})")
+        title = r["reference"].split(", batch")[0]
+    axis.set(yscale="log", xlabel="epoch", ylabel="training loss (normalised MSE)", title=title)
     axis.legend(fontsize=7)
     out = folder / "loss_curves.png"
     write_atomic(out, lambda tmp: figure.savefig(tmp, dpi=110, bbox_inches="tight", format="png"))
@@ -239,14 +334,19 @@ def main() -> None:
     parser.add_argument("--demos", type=int, default=30, help="target demonstrations per task")
     parser.add_argument("--rollouts", type=int, default=50, help="rollouts from held-out initial states")
     parser.add_argument("--max-epochs", type=int, default=2000, help="upper bound; training stops at the plateau")
-    parser.add_argument("--batch-size", type=int, default=512)
+    parser.add_argument("--reference", choices=sorted(REFERENCES), default="mlp", help="the BC model (see above)")
+    parser.add_argument("--batch-size", type=int, help="default: 512 for mlp, 100 for rnn (robomimic's)")
+    parser.add_argument("--lr", type=float, default=1e-3, help="AdamW's initial learning rate (cosine decay)")
+    parser.add_argument("--max-train-minutes", type=float, default=float("inf"), help="wall-time cap on training")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=1, help="simulation workers of the demo generator")
     parser.add_argument("--data-dir", type=Path, default=ROOT / "outputs" / "learnability")
-    parser.add_argument("--results", type=Path, default=RESULTS)
+    parser.add_argument("--results", type=Path, help=f"default: {RESULTS} for mlp, its bc_rnn/ for rnn")
     parser.add_argument("--force", action="store_true", help="redo tasks that already have a result")
     parser.add_argument("--table", action="store_true", help="print the table of stored results and exit")
     args = parser.parse_args()
+    args.batch_size = args.batch_size or DEFAULT_BATCH[args.reference]
+    args.results = args.results or (RESULTS if args.reference == "mlp" else RESULTS / "bc_rnn")
     unknown = [t for t in args.tasks if t not in TASKS]
     if unknown:
         parser.error(f"unknown tasks {unknown}; choose from {sorted(TASKS)}")

@@ -113,6 +113,14 @@ LADDER: tuple[Task, ...] = (
         plan=(Step("toggle", ("light", "on")),),
     ),
     Task(
+        name="burner_on",
+        description="Switch the burner on.",
+        goals=(P.switch_on("burner"),),
+        init={},
+        max_steps=200,
+        plan=(Step("toggle", ("burner", "on")),),
+    ),
+    Task(
         name="open_drawer",
         description="Open the drawer.",
         goals=(P.drawer_open(),),

@@ -1,0 +1,52 @@
+"""The calibration tool's BC references (`benchmarks/kitchen_learnability.py`): the RNN's rollout actor must act as
+the network it trained (same hidden state, same horizon), and the windows must stop at an episode's end."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import torch
+
+SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "kitchen_learnability.py"
+
+
+def _load():
+    spec = importlib.util.spec_from_file_location("kitchen_learnability", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_windows_repeat_the_last_frame_of_their_episode():
+    kl = _load()
+    end = torch.tensor([3, 3, 3, 5, 5])  # two episodes: frames 0-2 and 3-4
+    assert kl.ahead(end, 4).tolist() == [[0, 1, 2, 2], [1, 2, 2, 2], [2, 2, 2, 2], [3, 4, 4, 4], [4, 4, 4, 4]]
+
+
+def test_rnn_actor_replays_the_trained_sequence_and_resets_every_horizon():
+    kl = _load()
+    torch.manual_seed(0)
+    model = kl.RNN(obs_dim=5, action_dim=3, width=16).eval()
+    steps = kl.RNN_HORIZON + 4
+    obs = torch.randn(steps, 5)
+    act = model.actor()
+    with torch.no_grad():
+        online = np.stack([act(o) for o in obs])
+        first = model(obs[None, : kl.RNN_HORIZON])[0].numpy()  # what training saw: a sequence from a zero state
+        second = model(obs[None, kl.RNN_HORIZON :])[0].numpy()  # the next horizon starts from zero again
+    np.testing.assert_allclose(online[: kl.RNN_HORIZON], first, atol=1e-6)
+    np.testing.assert_allclose(online[kl.RNN_HORIZON :], second, atol=1e-6)
+
+
+def test_mlp_actor_runs_the_first_actions_of_each_chunk():
+    kl = _load()
+    torch.manual_seed(0)
+    model = kl.MLP(obs_dim=5, action_dim=3, width=16).eval()
+    obs = torch.randn(2 * kl.EXECUTE, 5)
+    act = model.actor()
+    with torch.no_grad():
+        online = np.stack([act(o) for o in obs])
+        planned = [model(obs[i][None])[0, : kl.EXECUTE].numpy() for i in (0, kl.EXECUTE)]
+    np.testing.assert_allclose(online, np.concatenate(planned), atol=1e-6)
