@@ -328,6 +328,36 @@ def plot_curves(folder: Path) -> Path:
     return out
 
 
+def plot_ladder(results: Path = RESULTS) -> Path:
+    """Success per task (ladder order) for each reference with stored results, against the calibration goals:
+    >= 60 % on single steps, 15-50 % on multi-step tasks (the seed's target-only regime)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folders = {"MLP (current observation)": results, "BC-RNN (history of 10)": results / "bc_rnn"}
+    found = {
+        label: {json.loads(p.read_text())["task"]: json.loads(p.read_text()) for p in f.glob("*.json")}
+        for label, f in folders.items()
+    }
+    tasks = sorted({t for rows in found.values() for t in rows}, key=lambda t: (TASKS[t].level, t))
+    figure, axis = plt.subplots(figsize=(max(6, 0.9 * len(tasks)), 4))
+    width = 0.8 / len(found)
+    for i, (label, rows) in enumerate(found.items()):
+        xs = [j + (i - (len(found) - 1) / 2) * width for j, t in enumerate(tasks) if t in rows]
+        axis.bar(xs, [100 * rows[t]["success"] for t in tasks if t in rows], width, label=label)
+    axis.axhspan(15, 50, color="grey", alpha=0.15, label="multi-step goal: 15-50 %")
+    axis.axhline(60, color="grey", linestyle="--", linewidth=1, label="single-step goal: >= 60 %")
+    axis.set_xticks(range(len(tasks)), [f"{t}\n(level {TASKS[t].level})" for t in tasks], fontsize=7, rotation=30)
+    axis.set(ylabel="success (%), 50 held-out rollouts", ylim=(0, 105), title="Converged BC on 30 demos per task")
+    axis.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    out = results / "ladder.png"
+    write_atomic(out, lambda tmp: figure.savefig(tmp, dpi=110, bbox_inches="tight", format="png"))
+    plt.close(figure)
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tasks", nargs="*", default=sorted(TASKS, key=lambda t: (TASKS[t].level, t)))
@@ -361,6 +391,7 @@ def main() -> None:
         write_text_atomic(args.results / "results.md", table(args.results))
     print(table(args.results))
     print(f"loss curves: {plot_curves(args.results)}")
+    print(f"success per task and reference: {plot_ladder()}")
 
 
 if __name__ == "__main__":
