@@ -338,10 +338,7 @@ def plot_ladder(results: Path = RESULTS) -> Path:
     import matplotlib.pyplot as plt
 
     folders = {"MLP (current observation)": results, "BC-RNN (history of 10)": results / "bc_rnn"}
-    found = {
-        label: {json.loads(p.read_text())["task"]: json.loads(p.read_text()) for p in f.glob("*.json")}
-        for label, f in folders.items()
-    }
+    found = {label: {p.stem: json.loads(p.read_text()) for p in f.glob("*.json")} for label, f in folders.items()}
     tasks = sorted({t for rows in found.values() for t in rows}, key=lambda t: (TASKS[t].level, t))
     figure, axis = plt.subplots(figsize=(max(6, 0.9 * len(tasks)), 4))
     width = 0.8 / len(found)
