@@ -16,12 +16,13 @@ import pytest
 
 from lerobot_skillret.pipeline.config import EvalSpec, PipelineConfig, RetrievalSpec, TrainSpec
 from lerobot_skillret.pipeline.plan import Cell, Plan
-from lerobot_skillret.pipeline.protocol import summarise_cell
+from lerobot_skillret.pipeline.protocol import read_loss_curve, summarise_cell
 from lerobot_skillret.pipeline.results import (
     HELDOUT_FILE,
     PUBLISHED_HELDOUT,
     bar_plot,
     collect,
+    loss_plot,
     markdown_report,
     markdown_table,
 )
@@ -372,6 +373,39 @@ def test_best_checkpoint_ties_go_to_higher_progress(tmp_path: Path) -> None:
         info.write_text(json.dumps({"overall": overall}))
     summary = summarise_cell(plan, cell, train_seconds=1.0, eval_seconds=2.0)
     assert (summary["best_step"], summary["success"], summary["subgoals"]) == (500, 0.0, 0.5)
+
+
+def test_cells_keep_the_training_loss_curve_and_report_their_budget(tmp_path: Path) -> None:
+    """The curve comes from lerobot-train's log lines (rounded steps, exact epochs); other lines are ignored."""
+    log = tmp_path / "train.log"
+    log.write_text(
+        "$ lerobot-train --policy.type=skillret\n"
+        "Map: 100%|##########| 1000/1000 [00:00<00:00, 2022.33 examples/s]\n"
+        "INFO 2026-12-01 04:10:00 ot_train.py:422 step:1K smpl:64K ep:211 epch:7.04 loss:0.412 grdn:3.2 lr:1.0e-04\n"
+        "INFO 2026-12-01 04:10:00 ot_train.py:430 Checkpoint policy after step 1000\n"
+        "INFO 2026-12-01 04:14:00 ot_train.py:422 step:2K smpl:128K ep:422 epch:14.08 loss:0.023 grdn:1.1 lr:1e-4\n"
+    )
+    curve = read_loss_curve(log)
+    assert curve == [[7.04, 0.412], [14.08, 0.023]]
+    assert read_loss_curve(tmp_path / "missing.log") == []
+
+    cfg = PipelineConfig(output_dir=str(tmp_path / "out"), tasks=["cook"], methods=["skillret"], seeds=[0])
+    plan, cell = Plan(cfg), Cell("skillret", "cook", 0)
+    (plan.train_dir(cell) / "checkpoints" / "2000" / "pretrained_model").mkdir(parents=True)
+    info = plan.eval_dir(cell, 2000) / "eval_info.json"
+    info.parent.mkdir(parents=True)
+    info.write_text(json.dumps({"overall": {"pc_success": 40.0, "avg_max_reward": 0.5, "n_episodes": 50}}))
+    summary = summarise_cell(plan, cell, train_seconds=600.0, eval_seconds=2.0, loss_curve=curve)
+    assert summary["train_epochs"] == 14.08 and summary["loss_curve"] == curve
+    path = tmp_path / "results" / "skillret" / "cook" / "seed0" / "cell.json"
+    path.parent.mkdir(parents=True)
+    path.write_text(json.dumps(summary))
+    _cell(tmp_path / "results", "act", "cook", 0, 0.2)  # summarised before budgets were recorded
+    cells = collect(tmp_path / "results")
+    budget = markdown_report(cells, {}).split("### Training budget")[1]
+    assert "| skillret | 14 ep, 10 min | 10 |" in budget and "| act | — | — |" in budget
+    assert loss_plot(cells, tmp_path / "loss.png") and (tmp_path / "loss.png").stat().st_size > 1000
+    assert not loss_plot({("act", "cook"): cells[("act", "cook")]}, tmp_path / "none.png")
 
 
 @pytest.mark.parametrize("jobs", [1, 2])

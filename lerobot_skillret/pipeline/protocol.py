@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 from typing import Any
@@ -27,10 +28,32 @@ def read_eval(eval_info: Path) -> dict[str, float | int]:
     }
 
 
-def summarise_cell(plan: Plan, cell: Cell, train_seconds: float | None, eval_seconds: float) -> dict[str, Any]:
+# lerobot-train's periodic log line: "step:2K smpl:64K ep:211 epch:7.04 loss:0.012 grdn:..." (steps are rounded)
+_TRAIN_LOG_LINE = re.compile(r"\bepch:(?P<epoch>[0-9.]+)\b.*?\bloss:(?P<loss>[0-9.eE+-]+)")
+
+
+def read_loss_curve(train_log: Path) -> list[list[float]]:
+    """(epoch, mean training loss since the previous line) pairs from a lerobot-train log; [] without a log.
+
+    Epochs are lerobot-train's: passes over the dataset it trains on (a skillret method's target plus retrieved
+    windows)."""
+    if not train_log.is_file():
+        return []
+    found = (_TRAIN_LOG_LINE.search(line) for line in train_log.read_text(errors="replace").splitlines())
+    return [[float(m["epoch"]), float(m["loss"])] for m in found if m]
+
+
+def summarise_cell(
+    plan: Plan,
+    cell: Cell,
+    train_seconds: float | None,
+    eval_seconds: float,
+    loss_curve: list[list[float]] | None = None,
+) -> dict[str, Any]:
     """Collect every evaluated checkpoint of one run and pick the best by success, as the seed's protocol does.
 
-    Ties (e.g. every checkpoint at 0%) go to the higher subtask progress, then to the later checkpoint.
+    Ties (e.g. every checkpoint at 0%) go to the higher subtask progress, then to the later checkpoint. The training
+    loss curve (`read_loss_curve`) is kept so that a reader can see whether the budget reached a plateau.
     """
     rows = [
         {"step": step, **read_eval(plan.eval_dir(cell, step) / "eval_info.json")} for step, _ in plan.checkpoints(cell)
@@ -48,6 +71,8 @@ def summarise_cell(plan: Plan, cell: Cell, train_seconds: float | None, eval_sec
         "n_episodes": best["n_episodes"],
         "checkpoints": rows,
         "train_seconds": train_seconds,
+        "train_epochs": loss_curve[-1][0] if loss_curve else None,
+        "loss_curve": loss_curve or [],
         "eval_seconds": round(eval_seconds, 1),
         "output_dir": str(plan.root),
     }

@@ -114,9 +114,33 @@ def heldout_table(scores: dict[tuple[str, str], list[dict]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def budget_table(cells: dict[tuple[str, str], list[dict]]) -> str:
+    """Rows: methods; columns: tasks; entries: training epochs and wall minutes, mean over seeds (the average column
+    is wall minutes). Cells from before loss curves were recorded show their minutes only."""
+
+    def entry(runs: list[dict]) -> tuple[str, float] | None:
+        minutes = [r["train_seconds"] / 60 for r in runs if r.get("train_seconds")]
+        if not minutes:
+            return None
+        epochs = [r["train_epochs"] for r in runs if r.get("train_epochs")]
+        text = f"{np.mean(epochs):.0f} ep, " if epochs else ""
+        return f"{text}{np.mean(minutes):.0f} min", float(np.mean(minutes))
+
+    lines = _grid(cells, entry, digits=0)
+    lines += [
+        "",
+        "Training budget: lerobot-train epochs (passes over the data each run trains on; for skillret methods the "
+        "target plus retrieved windows) and wall minutes of training, mean over seeds; the average column is minutes. "
+        "Stage 1 (skills on the prior) is shared by the tasks of a seed and not included.",
+    ]
+    return "\n".join(lines) + "\n"
+
+
 def markdown_report(cells: dict[tuple[str, str], list[dict]], heldout: dict[tuple[str, str], list[dict]]) -> str:
-    """Both rollout tables, success first (the seed's metric), then the held-out errors where scored."""
+    """Both rollout tables, success first (the seed's metric), the training budgets, then the held-out errors where
+    scored."""
     sections = [f"### {METRICS[m]}\n\n{markdown_table(cells, m)}" for m in METRICS]
+    sections.append(f"### Training budget\n\n{budget_table(cells)}")
     if heldout:
         sections.append(f"### Held-out imitation error (skillret variants)\n\n{heldout_table(heldout)}")
     return "\n".join(sections)
@@ -153,11 +177,41 @@ def bar_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> None:
     plt.close(fig)
 
 
+def loss_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> bool:
+    """One panel per task: every run's training loss against epochs (log scale), one colour per method, so a
+    reader sees which budgets reached a plateau. False (nothing written) when no cell recorded a curve."""
+    curves = {key: [r["loss_curve"] for r in runs if r.get("loss_curve")] for key, runs in cells.items()}
+    tasks = sorted({t for (_, t), found in curves.items() if found})
+    if not tasks:
+        return False
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    methods = _order({m for (m, _), found in curves.items() if found})
+    fig, axes = plt.subplots(1, len(tasks), figsize=(4.5 * len(tasks), 3.5), squeeze=False)
+    for ax, task in zip(axes[0], tasks, strict=True):
+        for colour, method in enumerate(methods):
+            for seed, curve in enumerate(curves.get((method, task), [])):
+                epochs, losses = np.array(curve).T
+                ax.plot(epochs, losses, color=f"C{colour}", lw=1, label=method if seed == 0 else None)
+        ax.set(title=task, xlabel="epochs (lerobot-train)", ylabel="training loss", yscale="log")
+        ax.legend(fontsize=7)
+    fig.suptitle("Training loss per run (each method's own loss: not comparable across methods, only its shape)")
+    fig.tight_layout()
+    write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=120, format="png"))
+    plt.close(fig)
+    return True
+
+
 def write_report(
     cells: dict[tuple[str, str], list[dict]], folder: Path, heldout: dict[tuple[str, str], list[dict]] | None = None
 ) -> str:
-    """`results.md` (the tables) and `results.png` in `folder`; returns the markdown."""
+    """`results.md` (the tables), `results.png` and, where cells recorded them, `loss_curves.png` in `folder`;
+    returns the markdown."""
     report = markdown_report(cells, heldout or {})
     write_text_atomic(folder / "results.md", report)
     bar_plot(cells, folder / "results.png")
+    loss_plot(cells, folder / "loss_curves.png")
     return report

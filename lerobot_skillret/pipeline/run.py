@@ -22,7 +22,7 @@ from pathlib import Path
 from lerobot_skillret.pipeline.config import PipelineConfig
 from lerobot_skillret.pipeline.methods import METHODS
 from lerobot_skillret.pipeline.plan import Cell, Plan
-from lerobot_skillret.pipeline.protocol import publish_cell, summarise_cell
+from lerobot_skillret.pipeline.protocol import publish_cell, read_loss_curve, summarise_cell
 from lerobot_skillret.pipeline.results import PUBLISHED_HELDOUT, collect, write_report
 from lerobot_skillret.pipeline.stages import Cancelled, Stage, StageRunner
 
@@ -58,7 +58,8 @@ def run_cell(plan: Plan, runner: StageRunner, cell: Cell, results_dir: Path | No
     start = time.monotonic()
     for step, checkpoint in plan.checkpoints(cell):
         runner.run(plan.eval_stage(cell, step, checkpoint))
-    summary = summarise_cell(plan, cell, runner.timing(train.name), time.monotonic() - start)
+    curve = read_loss_curve(runner.log_path(train))
+    summary = summarise_cell(plan, cell, runner.timing(train.name), time.monotonic() - start, curve)
     publish_cell(plan, cell, summary, results_dir)
     log.info(
         "[cell] %s/%s/seed%d: success %.2f, subtask progress %.2f (best of %d checkpoints, step %d)",

@@ -98,7 +98,8 @@ class StageRunner:
         self.env = {**os.environ, **(env or {})}
         self.cancel = threading.Event()
 
-    def _log_path(self, stage: Stage) -> Path:
+    def log_path(self, stage: Stage) -> Path:
+        """Where the stage's command writes its stdout and stderr."""
         return self.logs / (stage.name.replace("/", "__") + ".log")
 
     def _record(self, path: Path, name: str, value: object) -> None:
@@ -145,7 +146,7 @@ class StageRunner:
         _remove(stage.partial)
         stage.output.parent.mkdir(parents=True, exist_ok=True)
         self.logs.mkdir(parents=True, exist_ok=True)
-        log_path = self._log_path(stage)
+        log_path = self.log_path(stage)
         log.info("[run ] %s  (log: %s)", stage.name, log_path)
         start = time.monotonic()
         with log_path.open("w") as handle:
