@@ -35,8 +35,8 @@ _TRAIN_LOG_LINE = re.compile(r"\bepch:(?P<epoch>[0-9.]+)\b.*?\bloss:(?P<loss>[0-
 def read_loss_curve(train_log: Path) -> list[list[float]]:
     """(epoch, mean training loss since the previous line) pairs from a lerobot-train log; [] without a log.
 
-    Epochs are lerobot-train's: passes over the dataset it trains on (a skillret method's target plus retrieved
-    windows)."""
+    Epochs are lerobot-train's: steps x batch size / frames of the dataset it was given (the target demos; a
+    skillret batch also carries retrieved windows)."""
     if not train_log.is_file():
         return []
     found = (_TRAIN_LOG_LINE.search(line) for line in train_log.read_text(errors="replace").splitlines())

@@ -129,9 +129,9 @@ def budget_table(cells: dict[tuple[str, str], list[dict]]) -> str:
     lines = _grid(cells, entry, digits=0)
     lines += [
         "",
-        "Training budget: lerobot-train epochs (passes over the data each run trains on; for skillret methods the "
-        "target plus retrieved windows) and wall minutes of training, mean over seeds; the average column is minutes. "
-        "Stage 1 (skills on the prior) is shared by the tasks of a seed and not included.",
+        "Training budget: lerobot-train epochs (steps x batch size / frames of the target demos; a skillret batch "
+        "also carries retrieved windows) and wall minutes of training, mean over seeds; the average column is "
+        "minutes. Stage 1 (skills on the prior) is shared by the tasks of a seed and not included.",
     ]
     return "\n".join(lines) + "\n"
 
@@ -190,7 +190,7 @@ def loss_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> bool:
     import matplotlib.pyplot as plt
 
     methods = _order({m for (m, _), found in curves.items() if found})
-    fig, axes = plt.subplots(1, len(tasks), figsize=(4.5 * len(tasks), 3.5), squeeze=False)
+    fig, axes = plt.subplots(1, len(tasks), figsize=(max(6.5, 4.5 * len(tasks)), 3.5), squeeze=False)
     for ax, task in zip(axes[0], tasks, strict=True):
         for colour, method in enumerate(methods):
             for seed, curve in enumerate(curves.get((method, task), [])):
@@ -198,7 +198,7 @@ def loss_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> bool:
                 ax.plot(epochs, losses, color=f"C{colour}", lw=1, label=method if seed == 0 else None)
         ax.set(title=task, xlabel="epochs (lerobot-train)", ylabel="training loss", yscale="log")
         ax.legend(fontsize=7)
-    fig.suptitle("Training loss per run (each method's own loss: not comparable across methods, only its shape)")
+    fig.suptitle("Training loss per run (each method's own loss: compare shapes, not levels)", fontsize=9)
     fig.tight_layout()
     write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=120, format="png"))
     plt.close(fig)
