@@ -268,6 +268,27 @@ def test_select_action_runs_skills_closed_loop(prior_root):
     assert len(policy._history_frames) == config.history and policy._steps_left == config.horizon - 1
 
 
+def test_rollout_steps_reproduce_the_decoders_training_pass(prior_root):
+    """Rollouts run the decoder cell by cell (`lstm_steps`), training runs `nn.LSTM` over the whole window: given the
+    same skill and the window's own observations, the H actions must agree, or rollouts execute other skills than
+    the trained ones (and the oracle diagnostics would blame the wrong stage)."""
+    config = tiny_config()
+    policy = build_policy(config, PRIOR_REPO, prior_root).eval()
+    sampler = WindowSampler(EpisodeColumns.from_dataset(PRIOR_REPO, prior_root), config.history, config.horizon)
+    raw = sampler.gather(torch.arange(0, 40, 7))
+    with torch.no_grad():
+        skill = policy.encode_skill(raw)[0]
+        trained, _ = policy.skills.decoder(skill, policy._window(raw))
+    policy.reset()
+    policy.execute_skill(skill)
+    steps = [
+        policy.select_action({key: raw[key][:, t - config.horizon] for key in policy.observation_keys})
+        for t in range(config.horizon)
+    ]
+    rolled = policy.normalizer.normalize("action", torch.stack(steps, dim=1))
+    torch.testing.assert_close(rolled, trained, atol=1e-5, rtol=0)
+
+
 def test_execute_skill_decodes_the_given_skill_like_the_policy_path(prior_root):
     """Oracle-skill diagnostics go through the same decoder path as the policy's own choice."""
     config = tiny_config()
