@@ -213,5 +213,6 @@ def write_report(
     report = markdown_report(cells, heldout or {})
     write_text_atomic(folder / "results.md", report)
     bar_plot(cells, folder / "results.png")
-    loss_plot(cells, folder / "loss_curves.png")
+    if not loss_plot(cells, folder / "loss_curves.png"):
+        (folder / "loss_curves.png").unlink(missing_ok=True)  # no stale figure beside tables without curves
     return report
