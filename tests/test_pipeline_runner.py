@@ -91,6 +91,18 @@ def test_data_stages_carry_the_kitchen_fingerprint_which_follows_its_files(tmp_p
     assert fingerprint.kitchen_fingerprint(copy) != before
 
 
+def test_training_stages_follow_the_contents_of_their_config_file(tmp_path: Path) -> None:
+    """The command names `--config_path`, not what the file says: editing the file changes the stage's identity, so
+    the runner refuses the old checkpoint instead of reusing it."""
+    config = tmp_path / "cpu.json"
+    config.write_text('{"policy": {"kl_weight": 1e-05}}')
+    cfg = PipelineConfig(output_dir=str(tmp_path / "out"), skills=TrainSpec(config_path=str(config)))
+    before = Plan(cfg).skills_stage(0).identity
+    config.write_text('{"policy": {"kl_weight": 1e-03}}')
+    after = Plan(cfg).skills_stage(0).identity
+    assert before != after and before[:-1] == after[:-1]  # the same command line, another config tag
+
+
 def test_two_runners_sharing_a_folder_build_a_stage_once(tmp_path: Path) -> None:
     """Two pipeline processes on one output folder: the second waits for the stage lock, then skips the stage."""
     from concurrent.futures import ThreadPoolExecutor

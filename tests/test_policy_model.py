@@ -501,6 +501,27 @@ def test_min_max_margin_keeps_the_data_range_inside_tanh():
         tiny_config(min_max_margin=1.0)
 
 
+@pytest.mark.parametrize("mode", [NormalizationMode.MIN_MAX, NormalizationMode.MEAN_STD])
+def test_the_decoders_output_range_follows_the_action_normalisation(prior_root, mode):
+    """MIN_MAX actions: tanh decoder and targets clipped to [-1, 1] (the paper). MEAN_STD: a linear head and
+    targets kept as they are, so actions beyond one std are neither clipped nor out of the decoder's reach."""
+    mapping = {**tiny_config().skill_normalization_mapping, "ACTION": mode}
+    policy = build_policy(tiny_config(skill_normalization_mapping=mapping), PRIOR_REPO, prior_root)
+    raw = training_batch(policy.config, PRIOR_REPO, prior_root, size=2)
+    far = policy.normalizer.unnormalize("action", torch.full_like(raw["action"], 3.0))  # 3 units out
+    window = policy._window({**raw, "action": far})
+
+    last = policy.skills.decoder.head[-1]
+    torch.nn.init.zeros_(last.weight)
+    torch.nn.init.constant_(last.bias, 3.0)
+    decoded, _ = policy.skills.decoder(torch.zeros(2, policy.config.latent_dim), window)
+
+    bounded = mode is NormalizationMode.MIN_MAX
+    assert torch.allclose(window["action"], torch.full_like(window["action"], 1.0 if bounded else 3.0))
+    assert torch.allclose(decoded, torch.full_like(decoded, float(torch.tanh(torch.tensor(3.0))) if bounded else 3.0))
+    assert policy.config.bounded_actions is (mode is NormalizationMode.MIN_MAX)
+
+
 def test_each_dataset_id_conditions_its_own_windows(stage1_dir, prior_root, target_root, tmp_path):
     """Target windows are labelled with the target id, retrieved windows with the retrieved id (guards retrieved
     windows trained as if they were target data, which makes the id meaningless at rollout)."""

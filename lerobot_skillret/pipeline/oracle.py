@@ -86,7 +86,7 @@ def oracle_success(
 ) -> dict:
     """Oracle-skill success of `checkpoint` on the first `episodes` demonstrations of the dataset at `demos`, and
     the teacher-forced oracle action error on all of them (squared error summed over action dimensions, in the
-    decoder's [-1, 1] units, at every window where a rollout picks a skill)."""
+    decoder's normalised units, at every window where a rollout picks a skill)."""
     policy = SkillRetPolicy.from_pretrained(checkpoint).eval()
     config = policy.config
     columns = EpisodeColumns.from_dataset(f"local/{demos.name}", demos)

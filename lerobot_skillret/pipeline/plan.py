@@ -14,6 +14,7 @@ Layout of the output folder (every path is an artifact; a stage is skipped when 
 
 from __future__ import annotations
 
+import hashlib
 import sys
 from dataclasses import dataclass
 from functools import cached_property
@@ -145,6 +146,9 @@ class Plan:
             *([f"--config_path={Path(spec.config_path).resolve()}"] if spec.config_path else []),
             *cli_args(spec.args),
         ]
+        if spec.config_path:  # the command names the file, not what it says: an edited file must not be reused
+            digest = hashlib.sha256(Path(spec.config_path).read_bytes()).hexdigest()[:16]
+            stage.tags = (f"config_sha256={digest}",)
         return stage
 
     def skills_dir(self, seed: int, task: str | None = None) -> Path:

@@ -101,7 +101,10 @@ class SkillRetConfig(PreTrainedConfig):
             "VISUAL": NormalizationMode.IDENTITY,
             "STATE": NormalizationMode.MEAN_STD,
             "ENV": NormalizationMode.MEAN_STD,
-            "ACTION": NormalizationMode.MIN_MAX,  # the decoder's tanh output lives in [-1, 1]
+            # MIN_MAX: the decoder ends in tanh, actions live in [-1, 1] (the paper). MEAN_STD: it ends in a linear
+            # layer, as robomimic's BC-RNN does; on the kitchen's 30 bread_and_butter demos that decoder executes
+            # oracle skills as often as the BC-RNN completes the task (README). Stage 1 only, like the margin.
+            "ACTION": NormalizationMode.MIN_MAX,
         }
     )
     # MIN_MAX maps the data's range onto [-(1 - margin), 1 - margin]. With 0 (the paper) actions a scripted expert
@@ -143,6 +146,8 @@ class SkillRetConfig(PreTrainedConfig):
                 )
         if not 0.0 <= self.min_max_margin < 1.0:
             fail("min_max_margin", self.min_max_margin, "use a value in [0, 1), e.g. 0.05")
+        if "ACTION" not in self.skill_normalization_mapping:
+            fail("skill_normalization_mapping", self.skill_normalization_mapping, "it needs an ACTION entry")
         for kind, mode in self.skill_normalization_mapping.items():
             if NormalizationMode(mode) not in SKILL_NORMALIZATION_MODES:
                 fail("skill_normalization_mapping", {kind: mode}, f"supported modes: {SKILL_NORMALIZATION_MODES}")
@@ -210,6 +215,11 @@ class SkillRetConfig(PreTrainedConfig):
     @property
     def reward_delta_indices(self) -> None:
         return None
+
+    @property
+    def bounded_actions(self) -> bool:
+        """Whether the decoder squashes its actions with tanh: only for MIN_MAX-normalised actions."""
+        return NormalizationMode(self.skill_normalization_mapping["ACTION"]) is NormalizationMode.MIN_MAX
 
     def get_optimizer_preset(self) -> AdamConfig:
         return AdamConfig(lr=self.skill_lr, grad_clip_norm=self.grad_clip_norm)

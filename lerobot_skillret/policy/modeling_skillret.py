@@ -118,14 +118,16 @@ class SkillRetPolicy(PreTrainedPolicy):
     def _window(self, raw: Batch) -> dict[str, Tensor]:
         """The last H steps of a raw window, normalised, with `valid` = not padded past the episode's end.
 
-        Normalised actions are clipped to [-1, 1], the range of the decoder's tanh (target data may exceed the
-        prior's range)."""
+        With a tanh decoder (MIN_MAX actions) normalised actions are clipped to [-1, 1], its range (target data may
+        exceed the prior's range)."""
         horizon = self.config.horizon
         actions = raw[ACTION].to(self._device(), torch.float32)
         if actions.ndim != 3 or actions.shape[1] != horizon:
             raise ValueError(f"skillret expects `action` windows (B, H={horizon}, A); got {tuple(actions.shape)}.")
         window = self._observations(raw, slice(-horizon, None))
-        window[ACTION] = self.normalizer.normalize(ACTION, actions).clamp(-1.0, 1.0)
+        window[ACTION] = self.normalizer.normalize(ACTION, actions)
+        if self.config.bounded_actions:
+            window[ACTION] = window[ACTION].clamp(-1.0, 1.0)
         pad = raw.get(f"{ACTION}_is_pad")
         window["valid"] = (
             ~pad.to(self._device(), torch.bool)
@@ -267,7 +269,7 @@ class SkillRetPolicy(PreTrainedPolicy):
 
         `policy`: the latent policy's skill (dataset id = target, as at rollout), decoded closed-loop along the
         window's own observations; `oracle`: the encoder's skill of the window itself, the best any policy over this
-        decoder can do. Squared error summed over action dimensions in the decoder's [-1, 1] units, averaged over
+        decoder can do. Squared error summed over action dimensions in the decoder's normalised units, averaged over
         the valid steps. On held-out demonstrations it compares checkpoints without the noise of a few rollouts."""
         self.normalizer.check_ready()
         target = self._window(window)

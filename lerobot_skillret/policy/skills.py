@@ -1,7 +1,8 @@
 """The skill model (seed C.1, Algorithm 1): a VAE over H-step windows with a learned prior and temporal prediction.
 
 - encoder q(z | o_t..t+H-1, a_t..t+H-1): 2-layer LSTM over (encoded obs, action), MLP -> mean, log-variance;
-- closed-loop decoder p(a_t | o_t, z): 2-layer LSTM fed (z, o_t) at every step, MLP, tanh (actions in [-1, 1]);
+- closed-loop decoder p(a_t | o_t, z): 2-layer LSTM fed (z, o_t) at every step, MLP, then tanh for MIN_MAX actions
+  (the paper; actions in [-1, 1]) or nothing for MEAN_STD ones;
 - learned prior p(z | o_0, o_{H-1}) (the window's first and last observation);
 - temporal predictor m(mu, mu') -> d, the step offset between two windows of one episode.
 
@@ -72,20 +73,21 @@ class SkillDecoder(nn.Module):
             obs_encoder.out_dim + config.latent_dim, config.decoder_lstm_hidden, config.lstm_layers, batch_first=True
         )
         self.head = mlp(config.decoder_lstm_hidden, config.decoder_mlp, action_dim)
+        self.squash = nn.Tanh() if config.bounded_actions else nn.Identity()
 
     def forward(self, z: Tensor, observation: Window, state: LSTMState | None = None) -> tuple[Tensor, LSTMState]:
-        """z (B, L), observations (B, T, ...) -> tanh actions (B, T, A) and the LSTM state after step T."""
+        """z (B, L), observations (B, T, ...) -> normalised actions (B, T, A) and the LSTM state after step T."""
         obs = self.obs_encoder(observation)
         features = torch.cat([z[:, None, :].expand(-1, obs.shape[1], -1), obs], dim=-1)
         outputs, state = self.lstm(features, state)
-        return torch.tanh(self.head(outputs)), state
+        return self.squash(self.head(outputs)), state
 
     def step(self, z: Tensor, observation: Window, state: CellState | None) -> tuple[Tensor, CellState]:
         """One rollout step: z (B, L), observations (B, ...) -> action (B, A) and the per-layer (h, c) state to
         pass to the next step (the same weights as `forward`, run cell by cell: see `lstm_steps`)."""
         features = torch.cat([z, self.obs_encoder(observation)], dim=-1)
         output, state = lstm_steps(self.lstm, features[:, None], state)
-        return torch.tanh(self.head(output)), state
+        return self.squash(self.head(output)), state
 
 
 class SkillPrior(nn.Module):
