@@ -109,7 +109,8 @@ def heldout_table(scores: dict[tuple[str, str], list[dict]]) -> str:
         f"Held-out imitation error of the final checkpoint (step {'/'.join(map(str, steps))}), mean over "
         f"{'/'.join(map(str, seed_counts))} seeds; oracle skills' error in parentheses; "
         f"{'/'.join(map(str, episodes))} held-out demonstrations per task. Squared action error in the decoder's "
-        "normalised units ([-1, 1] for MIN_MAX actions), summed over action dimensions, averaged over steps; lower is better.",
+        "normalised units ([-1, 1] for MIN_MAX actions), summed over action dimensions, averaged over steps; "
+        "lower is better.",
     ]
     return "\n".join(lines) + "\n"
 
