@@ -519,7 +519,7 @@ def test_the_decoders_output_range_follows_the_action_normalisation(prior_root, 
     bounded = mode is NormalizationMode.MIN_MAX
     assert torch.allclose(window["action"], torch.full_like(window["action"], 1.0 if bounded else 3.0))
     assert torch.allclose(decoded, torch.full_like(decoded, float(torch.tanh(torch.tensor(3.0))) if bounded else 3.0))
-    assert policy.config.bounded_actions is (mode is NormalizationMode.MIN_MAX)
+    assert policy.config.bounded_actions is bounded
 
 
 def test_each_dataset_id_conditions_its_own_windows(stage1_dir, prior_root, target_root, tmp_path):
