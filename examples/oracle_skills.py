@@ -30,9 +30,17 @@ def main() -> None:
         action="store_true",
         help="pick each latent by the robot's phase (nearest demo observation ahead) instead of the demo's clock",
     )
+    parser.add_argument(
+        "--policy-every",
+        type=int,
+        default=0,
+        help="every n-th skill is the stage-2 latent policy's own choice (0: none, 1: all, 2: every other)",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
-    result = oracle_success(args.checkpoint, args.demos, args.task, args.episodes, args.slack, args.align)
+    result = oracle_success(
+        args.checkpoint, args.demos, args.task, args.episodes, args.slack, args.align, args.policy_every
+    )
     print(
         f"oracle-skill success: {result['success']:.0%} of {result['episodes']} demos, sub-goals met "
         f"{result['goals_met']:.0%}, teacher-forced oracle action error {result['oracle_action_error']:.4f}"

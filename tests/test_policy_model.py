@@ -249,8 +249,9 @@ def test_stage2_refuses_bad_retrieval_setups(stage1_dir, prior_root, target_root
         ).forward(batch)
 
 
-def test_select_action_runs_skills_closed_loop(prior_root):
-    config = tiny_config()
+@pytest.mark.parametrize("skill_steps", [None, 3])
+def test_select_action_runs_skills_closed_loop(prior_root, skill_steps):
+    config = tiny_config(skill_steps=skill_steps)
     policy = build_policy(config, PRIOR_REPO, prior_root)
     batch = training_batch(config, PRIOR_REPO, prior_root, size=2)
     policy.reset()
@@ -262,10 +263,14 @@ def test_select_action_runs_skills_closed_loop(prior_root):
         observation = {key: batch[key][:, 0] + 0.01 * step for key in policy.observation_keys}
         actions.append(policy.select_action(observation))
     assert actions[0].shape == (2, 7)
-    assert len(calls) == 3  # a new skill at steps 0, H, 2H
+    every = skill_steps or config.horizon  # a new skill at steps 0, H, 2H (by default)
+    assert len(calls) == -(-(2 * config.horizon + 1) // every)
     chunk = policy.predict_action_chunk(observation)
     assert chunk.shape == (2, config.horizon, 7)
-    assert len(policy._history_frames) == config.history and policy._steps_left == config.horizon - 1
+    assert len(policy._history_frames) == config.history
+    assert policy._steps_left == -(2 * config.horizon + 1) % every
+    with pytest.raises(ValueError, match="skill_steps"):
+        tiny_config(skill_steps=config.horizon + 1)
 
 
 def test_rollout_steps_reproduce_the_decoders_training_pass(prior_root):
@@ -364,6 +369,17 @@ def test_decoder_scaling_is_the_stage1_one(stage1_dir, target_root):
         assert torch.equal(processed[key], value)
     action = torch.randn(3, 7)
     assert torch.equal(post(action), action)
+
+
+@pytest.mark.parametrize("change", [{"ACTION": NormalizationMode.MEAN_STD}, {"STATE": NormalizationMode.IDENTITY}])
+def test_a_checkpoint_refuses_another_normalisation_mode(stage1_dir, target_root, change):
+    """Stage 1 fixes each feature's mode; a stage-2 override of it (same buffer names, or buffers left unused)
+    must fail at load instead of swapping the decoder's head or feeding raw states silently."""
+    stage1 = SkillRetPolicy.from_pretrained(stage1_dir)
+    mapping = {**stage1.config.skill_normalization_mapping, **change}
+    assert mapping != stage1.config.skill_normalization_mapping
+    with pytest.raises(RuntimeError, match=r"the checkpoint normalises .* but the config asks for"):
+        stage2_policy(stage1_dir, target_root, skill_normalization_mapping=mapping)
 
 
 def test_cameras_train_both_stages_and_act(tmp_path):

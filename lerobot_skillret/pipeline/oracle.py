@@ -4,7 +4,9 @@ Each demonstration's initial state is restored in the kitchen env and, every H s
 encodes the demonstration's own window at that time (the oracle latent); the closed-loop decoder executes it. High
 success here and low success of the trained policy points at the latent policy; low success here points at the
 skill model. On demonstrations that no run trained on (another generation seed) it measures whether stage 1 learned
-skills that transfer to the target task.
+skills that transfer to the target task. With `policy_every` a stage-2 checkpoint's latent policy chooses some of the
+skills itself (every skill: the policy's own rollout from the demonstrations' initial states), which shows whether
+its latents fail everywhere or only where it has to carry on from its own earlier choices.
 """
 
 from __future__ import annotations
@@ -42,19 +44,22 @@ def oracle_episode(
     initial_state: np.ndarray,
     slack: float,
     align: bool = False,
+    policy_every: int = 0,
 ) -> tuple[bool, list[str]]:
     """Oracle-skill rollout of the demonstration whose frames start at global index `first`; it may run `slack`
     times the demonstration's length (past its end it keeps executing the last window's skill).
 
     The latent is the demonstration's window at the rollout's step t (its clock), or with `align` the window, at
     most 3 H steps ahead of the previous one, whose first observation is closest to the robot's current one (its
-    phase): a rollout that lags or leads the demonstration then still gets the skill for where it is."""
+    phase): a rollout that lags or leads the demonstration then still gets the skill for where it is. Every
+    `policy_every`-th skill (0: none) is left to the latent policy (`select_action` picks it from the history)."""
     observation, _ = env.reset(options={"initial_state": initial_state})
     horizon, success, at = policy.config.horizon, False, 0
     policy.reset()
     for t in range(int(length * slack)):
         batch = preprocess_observation({key: value[None] for key, value in observation.items()})
-        if t % horizon == 0:
+        skill = t // horizon
+        if t % horizon == 0 and not (policy_every and skill % policy_every == policy_every - 1):
             at = _closest_frame(policy, sampler, batch, first, at, min(at + 3 * horizon, length - 1)) if align else t
             anchor = torch.tensor([first + min(at, length - 1)])
             policy.execute_skill(policy.encode_skill(sampler.gather(anchor))[0])
@@ -82,13 +87,17 @@ def oracle_success(
     episodes: int | None = None,
     slack: float = 1.5,
     align: bool = False,
+    policy_every: int = 0,
     log=print,
 ) -> dict:
     """Oracle-skill success of `checkpoint` on the first `episodes` demonstrations of the dataset at `demos`, and
     the teacher-forced oracle action error on all of them (squared error summed over action dimensions, in the
-    decoder's normalised units, at every window where a rollout picks a skill)."""
+    decoder's normalised units, at every window where a rollout picks a skill). `policy_every`: see
+    `oracle_episode` (needs a stage-2 checkpoint: a stage-1 latent policy is untrained)."""
     policy = SkillRetPolicy.from_pretrained(checkpoint).eval()
     config = policy.config
+    if policy_every and config.stage != "policy":
+        raise ValueError(f"policy_every={policy_every} needs a stage-2 checkpoint; {checkpoint} is `{config.stage}`.")
     columns = EpisodeColumns.from_dataset(f"local/{demos.name}", demos)
     sampler = WindowSampler(columns, history=config.history, horizon=config.horizon)
     error = float(policy.imitation_error(sampler.gather(skill_starts(columns, config.horizon)))["oracle"].mean())
@@ -101,7 +110,7 @@ def oracle_success(
             first = int(np.flatnonzero(episode_index == entry["episode_index"])[0])
             length = int(episode_end[first]) - first
             success, unmet = oracle_episode(
-                policy, env, sampler, first, length, np.asarray(entry["initial_state"]), slack, align
+                policy, env, sampler, first, length, np.asarray(entry["initial_state"]), slack, align, policy_every
             )
             rows.append(OracleEpisode(entry["episode_index"], length, success, unmet))
             log(f"  demo {entry['episode_index']}: {length} steps, success={success}, unmet={unmet}")

@@ -36,6 +36,8 @@ class SkillRetConfig(PreTrainedConfig):
     # --- Windows (sub-trajectories).
     horizon: int = 10  # H: steps per skill window; the decoder runs H steps per policy query at rollout
     history: int = 10  # F: observations the policy sees before a window (frame stack, the anchor included)
+    skill_steps: int | None = None  # rollout: steps a skill runs before the policy picks the next one. None = H
+    # (the paper: no pre-emption); fewer re-plan more often, each new skill decoded from a fresh decoder state
 
     # --- Observation encoder (shared shape by the skill encoder/decoder/prior and the policy).
     low_dim_mlp: tuple[int, ...] = (256,)  # MLP over the concatenated low-dim observations (state, env state)
@@ -103,7 +105,8 @@ class SkillRetConfig(PreTrainedConfig):
             "ENV": NormalizationMode.MEAN_STD,
             # MIN_MAX: the decoder ends in tanh, actions live in [-1, 1] (the paper). MEAN_STD: it ends in a linear
             # layer, as robomimic's BC-RNN does (configs/policy/cpu.json: it executed 8 of 30 held-out
-            # bread_and_butter demos' oracle skills where tanh executed 1; configs/README.md). Stage 1 only.
+            # bread_and_butter demos' oracle skills where tanh executed 1; configs/README.md). Set in stage 1: a
+            # checkpoint refuses to load under another mode.
             "ACTION": NormalizationMode.MIN_MAX,
         }
     )
@@ -167,6 +170,8 @@ class SkillRetConfig(PreTrainedConfig):
         ):
             if getattr(self, name) < 1:
                 fail(name, getattr(self, name), "it must be >= 1")
+        if self.skill_steps is not None and not 1 <= self.skill_steps <= self.horizon:
+            fail("skill_steps", self.skill_steps, f"use None (= H) or a value in [1, H = {self.horizon}]")
         if self.tc_max_offset < 0 or self.slowness_max_offset < 0:
             name = "tc_max_offset" if self.tc_max_offset < 0 else "slowness_max_offset"
             fail(name, getattr(self, name), "an offset range must be >= 0")

@@ -323,8 +323,8 @@ class SkillRetPolicy(PreTrainedPolicy):
 
     @torch.inference_mode()
     def select_action(self, batch: dict[str, Tensor]) -> Tensor:
-        """(B, A) unnormalised action. Every H steps z = pi(history, id=target); in between, the closed-loop
-        decoder runs one step on the current observation, its LSTM state carried across the H steps."""
+        """(B, A) unnormalised action. Every H steps (`skill_steps` if set) z = pi(history, id=target); in between,
+        the closed-loop decoder runs one step on the current observation, its LSTM state carried across the skill."""
         if self.training:
             self.eval()
         frame = self._push_observation(batch)
@@ -332,7 +332,7 @@ class SkillRetPolicy(PreTrainedPolicy):
             self.normalizer.check_ready()
             self._skill = self._choose_skill()
             self._decoder_state = None
-            self._steps_left = self.config.horizon
+            self._steps_left = self.config.skill_steps or self.config.horizon
         action, self._decoder_state = self.skills.decoder.step(self._skill, frame, self._decoder_state)
         self._steps_left -= 1
         return self.normalizer.unnormalize(ACTION, action)

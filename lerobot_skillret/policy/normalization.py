@@ -7,6 +7,7 @@ target dataset's, which would silently rescale the actions a pre-trained decoder
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping
 
 import numpy as np
@@ -15,6 +16,7 @@ from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
 from torch import Tensor, nn
 
 MIN_SCALE = 1e-2  # floor of a std / half-range: a dimension constant in stage-1 data must not explode later
+MODES = (NormalizationMode.MEAN_STD, NormalizationMode.MIN_MAX)  # the code each mode is stored under
 
 
 def _buffer_name(key: str) -> str:
@@ -28,6 +30,9 @@ class SkillNormalizer(nn.Module):
     checkpoint acts the same whatever margin a later config asks for.
 
     Until statistics are set the buffers hold NaN, and `check_ready` refuses to train or act on them.
+
+    Each feature's mode is stored with its statistics, and loading a checkpoint whose modes differ from the config's
+    fails: the decoder's head follows the action mode (tanh or linear), so a silent swap would mis-scale every action.
     """
 
     def __init__(
@@ -49,6 +54,7 @@ class SkillNormalizer(nn.Module):
             dim = int(np.prod(feature.shape))
             self.register_buffer(f"{_buffer_name(key)}_shift", torch.full((dim,), torch.nan))
             self.register_buffer(f"{_buffer_name(key)}_scale", torch.full((dim,), torch.nan))
+            self.register_buffer(f"{_buffer_name(key)}_mode", torch.tensor([MODES.index(mode)]))
         if stats is not None:
             self.set_stats(stats)
 
@@ -69,6 +75,29 @@ class SkillNormalizer(nn.Module):
                 scale = (entry["max"] - entry["min"]) / 2 / (1.0 - self.min_max_margin)
             getattr(self, f"{_buffer_name(key)}_shift").copy_(shift)
             getattr(self, f"{_buffer_name(key)}_scale").copy_(scale.clamp_min(MIN_SCALE))
+
+    def _load_from_state_dict(self, state_dict, prefix, local_metadata, strict, missing, unexpected, errors):
+        """Refuse a checkpoint normalised otherwise than the config says (loading is non-strict in LeRobot)."""
+
+        def stored(suffix: str) -> dict[str, Tensor]:
+            return {
+                name.removeprefix(prefix).removesuffix(suffix): value
+                for name, value in state_dict.items()
+                if name.startswith(prefix) and name.endswith(suffix)
+            }
+
+        wanted = {_buffer_name(key): mode.value for key, mode in self.modes.items()}
+        found = {name: MODES[int(code)].value for name, code in stored("_mode").items()}
+        if not found and (shifted := stored("_shift")):  # saved before the modes were recorded
+            logging.warning("skillret: the checkpoint does not record its normalisation modes; assuming %s", wanted)
+            found = {name: wanted.get(name, "unrecorded") for name in shifted}
+        if found != wanted:
+            errors.append(
+                f"skillret normalisation: the checkpoint normalises {found or 'nothing'} but the config asks for "
+                f"{wanted or 'nothing'}. The modes are fixed by stage 1: drop the `skill_normalization_mapping` "
+                "override, or train stage 1 again with the new mapping."
+            )
+        super()._load_from_state_dict(state_dict, prefix, local_metadata, strict, missing, unexpected, errors)
 
     def check_ready(self) -> None:
         """Refuse NaN statistics: a policy built without dataset stats and without loaded weights."""
