@@ -217,6 +217,29 @@ def test_retrieved_labels_and_their_weight(stage1_dir, prior_root, target_root, 
     assert loss_3 - loss_1 == pytest.approx(2.0 * info["policy_retrieved_loss"], rel=1e-4)
 
 
+def test_policy_action_weight_adds_the_decoded_action_error(stage1_dir, target_root):
+    """The optional action term is the policy skill's decoded error on the batch's windows (as `imitation_error`
+    scores it), scaled by its weight, with a gradient that reaches the latent policy through the frozen decoder."""
+    policy = stage2_policy(stage1_dir, target_root, use_retrieval=False, finetune_skills=False).train()
+    batch = training_batch(policy.config, TARGET_REPO, target_root)
+    latent_only, info = policy.forward(batch)
+    assert "policy_action_loss" not in info
+
+    policy.config.policy_action_weight = 2.0
+    loss, info = policy.forward(batch)
+    reference = float(policy.imitation_error(batch)["policy"].mean())
+    assert info["policy_action_loss"] == pytest.approx(reference, rel=1e-5)
+    assert float(loss - latent_only) == pytest.approx(2.0 * reference, rel=1e-4)
+
+    def policy_gradient(weight: float) -> list[torch.Tensor]:
+        policy.zero_grad()
+        policy.config.policy_action_weight = weight
+        policy.forward(batch)[0].backward()
+        return [p.grad.clone() for p in policy.latent_policy.parameters()]
+
+    assert any(not torch.allclose(a, b) for a, b in zip(policy_gradient(0.0), policy_gradient(1.0), strict=True))
+
+
 def test_imitation_error_scores_the_policy_against_the_oracle_skill(stage1_dir, target_root, monkeypatch):
     policy = stage2_policy(stage1_dir, target_root, use_retrieval=False, finetune_skills=False).eval()
     frames = LeRobotDatasetMetadata(TARGET_REPO, root=target_root).total_frames

@@ -67,6 +67,8 @@ class SkillRetConfig(PreTrainedConfig):
     slowness_weight: float = 0.0  # implementation-only extra: means of windows within +-slowness_max_offset agree
     slowness_max_offset: int = 5  # implementation-only extra: offset range of the slowness pair
     inverse_dynamics_weight: float = 0.0  # implementation-only extra: (o_t, o_{t+H-1}) -> z head (code used 0.1)
+    policy_action_weight: float = 0.0  # not in the paper: adds the target windows' action error of the policy's
+    # skill, decoded along the window, to its latent loss (latent errors weighted by what they do to the actions)
 
     # --- Optimisation (Table 7; batch size 16 is `--batch_size`).
     skill_lr: float = 5e-4  # Adam learning rate of the skill VAE (encoder, decoder, prior)
@@ -181,6 +183,7 @@ class SkillRetConfig(PreTrainedConfig):
             "retrieved_weight",
             "slowness_weight",
             "inverse_dynamics_weight",
+            "policy_action_weight",
             "grad_clip_norm",
         ):
             if getattr(self, name) < 0:

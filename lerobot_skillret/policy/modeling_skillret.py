@@ -234,6 +234,10 @@ class SkillRetPolicy(PreTrainedPolicy):
         predicted = self.latent_policy(self._history(batch), target_ids)
         policy_loss = (predicted - labels).pow(2).sum(dim=-1).mean()
         terms["policy_target_loss"] = policy_loss.detach()
+        if config.policy_action_weight > 0:  # decoded like `imitation_error`; also trains a fine-tuned decoder
+            action_loss = self.skills.window_error(predicted, self._window(batch)).mean()
+            policy_loss = policy_loss + config.policy_action_weight * action_loss
+            terms["policy_action_loss"] = action_loss.detach()
 
         if data.retrieved is not None:
             retrieved, stored = data.retrieved.sample(size, device)
@@ -278,11 +282,7 @@ class SkillRetPolicy(PreTrainedPolicy):
             "policy": self.latent_policy(self._history(window), torch.full((size,), TARGET_ID, device=self._device())),
             "oracle": self.skills.encoder(target)[0],
         }
-        errors = {}
-        for name, z in skills.items():
-            squared, valid = self.skills.action_error(z, target)
-            errors[name] = (squared * valid).sum(dim=1) / valid.sum(dim=1).clamp_min(1.0)
-        return errors
+        return {name: self.skills.window_error(z, target) for name, z in skills.items()}
 
     # --- inference --------------------------------------------------------------------------------------------
 

@@ -145,6 +145,11 @@ class SkillModel(nn.Module):
         squared = (actions - window["action"]).pow(2).sum(dim=-1)
         return squared, window["valid"].to(actions.dtype)
 
+    def window_error(self, z: Tensor, window: Window) -> Tensor:
+        """`action_error` averaged over each window's valid steps, (B,)."""
+        squared, valid = self.action_error(z, window)
+        return (squared * valid).sum(dim=1) / valid.sum(dim=1).clamp_min(1.0)
+
     def loss(
         self,
         window: Window,
