@@ -405,6 +405,25 @@ def test_a_checkpoint_refuses_another_normalisation_mode(stage1_dir, target_root
         stage2_policy(stage1_dir, target_root, skill_normalization_mapping=mapping)
 
 
+def test_a_checkpoint_without_recorded_modes_still_loads_and_checks_its_features():
+    """Checkpoints saved before the modes were recorded load (assuming the config's modes), but one whose
+    normalised features differ from the config's is still refused."""
+    features = {
+        "observation.state": PolicyFeature(type=FeatureType.STATE, shape=(2,)),
+        "action": PolicyFeature(type=FeatureType.ACTION, shape=(2,)),
+    }
+    stats = {key: {"mean": [0.0, 1.0], "std": [1.0, 2.0], "min": [-1.0, 0.0], "max": [1.0, 4.0]} for key in features}
+    mapping = {"STATE": NormalizationMode.MEAN_STD, "ACTION": NormalizationMode.MEAN_STD}
+    legacy = {k: v for k, v in SkillNormalizer(features, mapping, stats).state_dict().items() if "_mode" not in k}
+    loaded = SkillNormalizer(features, mapping)
+    loaded.load_state_dict(legacy, strict=False)
+    assert torch.equal(loaded.action_scale, torch.tensor([1.0, 2.0]))
+    with pytest.raises(RuntimeError, match="unrecorded"):
+        SkillNormalizer(features, {**mapping, "STATE": NormalizationMode.IDENTITY}).load_state_dict(
+            legacy, strict=False
+        )
+
+
 def test_cameras_train_both_stages_and_act(tmp_path):
     """With a camera, the windows the policy fetches itself (temporal pairs, prior windows) carry its frames too,
     and both stages train and act (8x8 images: the encoder itself is tested on larger ones below)."""
