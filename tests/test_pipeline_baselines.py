@@ -1,8 +1,9 @@
-"""The ACT baseline trains through the pipeline's own stock `lerobot-train` command on low-dim data (no cameras).
+"""The ACT and Diffusion baselines train through the pipeline's own stock `lerobot-train` command on low-dim data.
 
-The options come from `baselines.act` of configs/pipeline/benchmark.yaml, so the test checks the options the pipeline
-really passes: lerobot-train must accept them for ACT on state + environment-state observations, and they must reach
-the saved policy config.
+The options come from `baselines.<method>` of configs/pipeline/benchmark.yaml, so the test checks the options the
+pipeline really passes: lerobot-train must accept them on state + environment-state observations (no cameras), the
+policy's own dependencies must be installed (Diffusion needs `diffusers`, which lerobot only brings with its
+`[diffusion]` extra), and the options must reach the saved policy config.
 """
 
 from __future__ import annotations
@@ -21,26 +22,27 @@ from lerobot_skillret.pipeline.stages import StageRunner
 BENCHMARK = Path(__file__).resolve().parents[1] / "configs" / "pipeline" / "benchmark.yaml"
 
 
-def act_spec() -> TrainSpec:
-    """The ACT options the benchmark really passes (one source: the pipeline config)."""
+def baseline_spec(method: str) -> TrainSpec:
+    """The options the benchmark really passes to a baseline (one source: the pipeline config)."""
     baselines = PipelineConfig.from_args(BENCHMARK).baselines
-    assert "act" in baselines, f"{BENCHMARK} lost its `baselines.act` section"
-    return baselines["act"]
+    assert method in baselines, f"{BENCHMARK} lost its `baselines.{method}` section"
+    return baselines[method]
 
 
 @pytest.mark.slow
-def test_act_baseline_trains_with_pipeline_options(tmp_path: Path) -> None:
-    spec = dataclasses.replace(act_spec(), steps=2, save_freq=2)
+@pytest.mark.parametrize("method", ["act", "diffusion"])
+def test_baseline_trains_with_pipeline_options(tmp_path: Path, method: str) -> None:
+    spec = dataclasses.replace(baseline_spec(method), steps=2, save_freq=2)
     cfg = PipelineConfig(
-        output_dir=str(tmp_path / "run"), tasks=["breakfast"], methods=["act"], baselines={"act": spec}
+        output_dir=str(tmp_path / "run"), tasks=["breakfast"], methods=[method], baselines={method: spec}
     )
     plan = Plan(cfg)
-    cell = Cell("act", "breakfast", 0)
+    cell = Cell(method, "breakfast", 0)
     demos = plan.demos_root(cell.task)
     make_synthetic_dataset(demos, repo_id=plan.repo_id(demos), num_episodes=3, min_len=25, max_len=40)
 
     stage = plan.train_stage(cell)
-    assert "--policy.type=act" in stage.command
+    assert f"--policy.type={method}" in stage.command
     StageRunner(plan.root, env={"HF_HUB_OFFLINE": "1", "OMP_NUM_THREADS": "1"}).run(stage)
 
     checkpoints = plan.checkpoints(cell)
@@ -48,7 +50,7 @@ def test_act_baseline_trains_with_pipeline_options(tmp_path: Path) -> None:
     pretrained = checkpoints[0][1]
     assert (pretrained / "model.safetensors").is_file()
     saved = json.loads((pretrained / "config.json").read_text())
-    assert saved["type"] == "act"
+    assert saved["type"] == method
     assert set(saved["input_features"]) == {"observation.state", "observation.environment_state"}
     for option, value in spec.args.items():
         if option.startswith("policy."):
