@@ -157,7 +157,7 @@ def bar_plot(cells: dict[tuple[str, str], list[dict]], path: Path) -> None:
     methods = _order({m for m, _ in cells})
     tasks = sorted({t for _, t in cells})
     width = 0.8 / max(1, len(methods))
-    width_in = 2.0 + 0.3 * len(tasks) * max(1, len(methods))
+    width_in = max(6.5, 2.0 + 0.3 * len(tasks) * max(1, len(methods)))  # room for the title and legend
     fig, axes = plt.subplots(len(METRICS), 1, figsize=(width_in, 3.0 * len(METRICS)), sharex=True)
     for ax, (metric, label) in zip(axes, METRICS.items(), strict=True):
         for i, method in enumerate(methods):
