@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import pytest
@@ -238,6 +239,53 @@ def test_policy_action_weight_adds_the_decoded_action_error(stage1_dir, target_r
         return [p.grad.clone() for p in policy.latent_policy.parameters()]
 
     assert any(not torch.allclose(a, b) for a, b in zip(policy_gradient(0.0), policy_gradient(1.0), strict=True))
+
+
+def test_mixture_head_is_the_gaussian_mixture_likelihood(stage1_dir, target_root):
+    """`policy_mixtures=k`: the policy loss is the mixture's negative log-likelihood of the encoder's skills, written
+    out here by hand, and the skill it runs is the mean of its most probable component. Stage 2 starts from a
+    stage-1 checkpoint whose (untrained) policy has the plain head."""
+    policy = stage2_policy(stage1_dir, target_root, use_retrieval=False, finetune_skills=False, policy_mixtures=3)
+    policy.train()
+    batch = training_batch(policy.config, TARGET_REPO, target_root)
+    history = policy._history(batch)
+    ids = torch.full((batch["action"].shape[0],), TARGET_ID)
+    labels, _ = policy.skills.encoder(policy._window(batch))
+    nll, chosen = policy.latent_policy.loss(history, ids, labels)
+
+    k, d = 3, policy.config.latent_dim
+    out = policy.latent_policy._features(history, ids)
+    logits, means, scales = out[:, :k], out[:, k : k + k * d].reshape(-1, k, d), out[:, k + k * d :].reshape(-1, k, d)
+    std = torch.nn.functional.softplus(scales) + 1e-4
+    per_component = (-0.5 * ((labels[:, None] - means) / std) ** 2 - std.log() - 0.5 * math.log(2 * math.pi)).sum(-1)
+    reference = -torch.logsumexp(per_component + torch.log_softmax(logits, dim=-1), dim=-1)
+    torch.testing.assert_close(nll, reference, rtol=1e-4, atol=1e-4)
+    best = means[torch.arange(len(logits)), logits.argmax(-1)]
+    torch.testing.assert_close(chosen, best)
+    torch.testing.assert_close(policy.latent_policy(history, ids), best)
+    _, info = policy.forward(batch)
+    assert info["policy_target_loss"] == pytest.approx(float(nll.detach().mean()), rel=1e-4)
+    # the stage-1 checkpoint's policy head has another shape: its skills load, its untrained policy is left out
+    stage1 = SkillRetPolicy.from_pretrained(stage1_dir).skills.state_dict()
+    for key, value in policy.skills.state_dict().items():
+        torch.testing.assert_close(value, stage1[key])
+
+
+def test_policy_obs_noise_perturbs_only_the_training_history(stage1_dir, target_root):
+    """The noise reaches the low-dim history at the configured scale (normalised units); rollouts and the held-out
+    score see clean observations."""
+    policy = stage2_policy(stage1_dir, target_root, use_retrieval=False, finetune_skills=False, policy_obs_noise=0.5)
+    batch = training_batch(policy.config, TARGET_REPO, target_root)
+    clean, noisy = policy._history(batch), policy._noisy_history(batch)
+    for key in policy.low_dim_keys:
+        assert float((noisy[key] - clean[key]).std()) == pytest.approx(0.5, rel=0.1)
+    policy.train()
+    assert policy.forward(batch)[1]["policy_loss"] != policy.forward(batch)[1]["policy_loss"]
+    policy.eval()
+    torch.testing.assert_close(policy.imitation_error(batch)["policy"], policy.imitation_error(batch)["policy"])
+    policy.config.policy_obs_noise = 0.0
+    policy.train()
+    assert policy.forward(batch)[1]["policy_loss"] == policy.forward(batch)[1]["policy_loss"]
 
 
 def test_imitation_error_scores_the_policy_against_the_oracle_skill(stage1_dir, target_root, monkeypatch):

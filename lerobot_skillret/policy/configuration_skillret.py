@@ -69,6 +69,11 @@ class SkillRetConfig(PreTrainedConfig):
     inverse_dynamics_weight: float = 0.0  # implementation-only extra: (o_t, o_{t+H-1}) -> z head (code used 0.1)
     policy_action_weight: float = 0.0  # not in the paper: adds the target windows' action error of the policy's
     # skill, decoded along the window, to its latent loss (latent errors weighted by what they do to the actions)
+    policy_mixtures: int = 0  # not in the paper: 0 regresses one z (the paper); k > 0 fits a k-component Gaussian
+    # mixture over z by its likelihood (robomimic's GMM head), so a state that admits several skills is not answered
+    # by their average; rollouts take the most probable component's mean
+    policy_obs_noise: float = 0.0  # not in the paper: std of Gaussian noise on the policy's normalised low-dim
+    # history during training, so states just off the demonstrations map to nearby skills
 
     # --- Optimisation (Table 7; batch size 16 is `--batch_size`).
     skill_lr: float = 5e-4  # Adam learning rate of the skill VAE (encoder, decoder, prior)
@@ -172,6 +177,10 @@ class SkillRetConfig(PreTrainedConfig):
         ):
             if getattr(self, name) < 1:
                 fail(name, getattr(self, name), "it must be >= 1")
+        if self.policy_mixtures < 0:
+            fail("policy_mixtures", self.policy_mixtures, "use 0 (regress z, the paper) or a number of components >= 1")
+        if self.policy_obs_noise < 0:
+            fail("policy_obs_noise", self.policy_obs_noise, "a noise standard deviation must be >= 0")
         if self.skill_steps is not None and not 1 <= self.skill_steps <= self.horizon:
             fail("skill_steps", self.skill_steps, f"use None (= H) or a value in [1, H = {self.horizon}]")
         if self.tc_max_offset < 0 or self.slowness_max_offset < 0:

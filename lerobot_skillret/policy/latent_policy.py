@@ -2,6 +2,7 @@
 
 A 2-layer LSTM over the F-step observation history. The dataset id (0 = target, 1 = retrieved) is a one-hot
 concatenated to every step's features, so the two sources can disagree without interfering; rollouts use 0.
+The paper regresses one z (squared error); `policy_mixtures > 0` makes the head a Gaussian mixture over z instead.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from collections.abc import Mapping
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+from torch.distributions import Categorical, Independent, MixtureSameFamily, Normal
 
 from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
 from lerobot_skillret.policy.networks import ObservationEncoder, mlp
@@ -18,21 +20,53 @@ from lerobot_skillret.policy.networks import ObservationEncoder, mlp
 TARGET_ID = 0
 RETRIEVED_ID = 1
 NUM_DATASET_IDS = 2
+MIN_STD = 1e-4  # floor of the mixture's standard deviations (robomimic's GMM head uses the same)
 
 
 class LatentPolicy(nn.Module):
     def __init__(self, config: SkillRetConfig, obs_encoder: ObservationEncoder) -> None:
         super().__init__()
         self.obs_encoder = obs_encoder
+        self.latent_dim, self.mixtures = config.latent_dim, config.policy_mixtures
         self.lstm = nn.LSTM(
             obs_encoder.out_dim + NUM_DATASET_IDS, config.policy_lstm_hidden, config.lstm_layers, batch_first=True
         )
-        self.head = mlp(config.policy_lstm_hidden, config.policy_mlp, config.latent_dim)
+        # per component: a logit, a mean and a log-scale per latent dimension; without mixtures just z
+        out_dim = self.mixtures * (1 + 2 * self.latent_dim) if self.mixtures else self.latent_dim
+        self.head = mlp(config.policy_lstm_hidden, config.policy_mlp, out_dim)
 
-    def forward(self, history: Mapping[str, Tensor], dataset_id: Tensor) -> Tensor:
-        """history: observation tensors (B, F, ...); dataset_id (B,) long -> predicted skill z (B, latent)."""
+    def _features(self, history: Mapping[str, Tensor], dataset_id: Tensor) -> Tensor:
         obs = self.obs_encoder(history)
         one_hot = F.one_hot(dataset_id, NUM_DATASET_IDS).to(obs.dtype)
         features = torch.cat([obs, one_hot[:, None, :].expand(-1, obs.shape[1], -1)], dim=-1)
         outputs, _ = self.lstm(features)
         return self.head(outputs[:, -1])
+
+    def _mixture(self, out: Tensor) -> MixtureSameFamily:
+        size = self.mixtures * self.latent_dim
+        logits, means, scales = out.split([self.mixtures, size, size], dim=-1)
+        shape = (out.shape[0], self.mixtures, self.latent_dim)
+        std = F.softplus(scales.reshape(shape)) + MIN_STD
+        components = Independent(Normal(means.reshape(shape), std), 1)
+        return MixtureSameFamily(Categorical(logits=logits), components)
+
+    @staticmethod
+    def _most_probable(mixture: MixtureSameFamily) -> Tensor:
+        """The mean of each sample's most probable component: a skill the data showed, not an average of several."""
+        best = mixture.mixture_distribution.logits.argmax(dim=-1)
+        return mixture.component_distribution.mean[torch.arange(len(best), device=best.device), best]
+
+    def forward(self, history: Mapping[str, Tensor], dataset_id: Tensor) -> Tensor:
+        """history: observation tensors (B, F, ...); dataset_id (B,) long -> the skill z to run (B, latent)."""
+        out = self._features(history, dataset_id)
+        return self._most_probable(self._mixture(out)) if self.mixtures else out
+
+    def loss(self, history: Mapping[str, Tensor], dataset_id: Tensor, labels: Tensor) -> tuple[Tensor, Tensor]:
+        """Per-window loss (B,) against the encoder's skills `labels` (B, latent), and the skill `forward` picks.
+
+        Squared error summed over latent dimensions (the paper), or the mixture's negative log-likelihood."""
+        out = self._features(history, dataset_id)
+        if not self.mixtures:
+            return (out - labels).pow(2).sum(dim=-1), out
+        mixture = self._mixture(out)
+        return -mixture.log_prob(labels), self._most_probable(mixture)

@@ -14,6 +14,7 @@ of `__init__`'s `config` parameter, which must stay a class, not a string.
 """
 
 import json
+import logging
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
@@ -25,7 +26,8 @@ from huggingface_hub import ModelCard
 from lerobot.configs.types import FeatureType
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION
-from safetensors import SafetensorError
+from safetensors import SafetensorError, safe_open
+from safetensors.torch import load_file
 from torch import Tensor
 
 from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
@@ -147,6 +149,15 @@ class SkillRetPolicy(PreTrainedPolicy):
             )
         return self._observations(raw, slice(0, history))
 
+    def _noisy_history(self, raw: Batch) -> dict[str, Tensor]:
+        """The policy's training input: `_history`, its low-dim steps perturbed by `policy_obs_noise` (in
+        normalised units) so that states just off the demonstrations are seen too."""
+        history = self._history(raw)
+        if self.config.policy_obs_noise > 0:
+            for key in self.low_dim_keys:
+                history[key] = history[key] + self.config.policy_obs_noise * torch.randn_like(history[key])
+        return history
+
     def _device(self) -> torch.device:
         return self.normalizer.device_marker.device
 
@@ -231,8 +242,8 @@ class SkillRetPolicy(PreTrainedPolicy):
                 labels, _ = self.skills.encoder(self._window(batch))
 
         target_ids = torch.full((size,), TARGET_ID, dtype=torch.long, device=device)
-        predicted = self.latent_policy(self._history(batch), target_ids)
-        policy_loss = (predicted - labels).pow(2).sum(dim=-1).mean()
+        policy_loss, predicted = self.latent_policy.loss(self._noisy_history(batch), target_ids, labels)
+        policy_loss = policy_loss.mean()
         terms["policy_target_loss"] = policy_loss.detach()
         if config.policy_action_weight > 0:  # decoded like `imitation_error`; also trains a fine-tuned decoder
             action_loss = self.skills.window_error(predicted, self._window(batch)).mean()
@@ -247,8 +258,8 @@ class SkillRetPolicy(PreTrainedPolicy):
                 with torch.no_grad():
                     retrieved_labels, _ = self.skills.encoder(self._window(retrieved))
             retrieved_ids = torch.full((size,), RETRIEVED_ID, dtype=torch.long, device=device)
-            predicted_retrieved = self.latent_policy(self._history(retrieved), retrieved_ids)
-            retrieved_loss = (predicted_retrieved - retrieved_labels).pow(2).sum(dim=-1).mean()
+            retrieved_loss, _ = self.latent_policy.loss(self._noisy_history(retrieved), retrieved_ids, retrieved_labels)
+            retrieved_loss = retrieved_loss.mean()
             policy_loss = policy_loss + config.retrieved_weight * retrieved_loss
             terms["policy_retrieved_loss"] = retrieved_loss.detach()
 
@@ -368,6 +379,8 @@ class SkillRetPolicy(PreTrainedPolicy):
         `SafetensorError` (a stage-2 dataset with another layout than the checkpoint's; a truncated file)."""
         _check_checkpoint_features(model.config, Path(model_file).parent)
         try:
+            if _stage1_policy_differs(model, model_file):
+                return _load_without_latent_policy(model, model_file, map_location)
             return super()._load_as_safetensor(model, model_file, map_location, strict)
         except SafetensorError as error:
             raise ValueError(
@@ -432,3 +445,31 @@ def _check_checkpoint_features(config: SkillRetConfig, folder: Path) -> None:
             "needs a target dataset with the prior's observation and action layout (same robot, keys and sizes): "
             "record the target like the prior, or pre-train the skills on a prior with the target's layout."
         )
+
+
+def _stage1_policy_differs(model: SkillRetPolicy, model_file: str) -> bool:
+    """Whether a stage-2 model is loading a stage-1 checkpoint whose (never trained) latent policy has other shapes,
+    e.g. stage 2 asks for a mixture head (`policy_mixtures`) or another policy width."""
+    saved = Path(model_file).parent / "config.json"
+    if model.config.stage != "policy" or not saved.is_file() or json.loads(saved.read_text()).get("stage") != "skills":
+        return False
+    own = model.latent_policy.state_dict()
+    with safe_open(model_file, framework="pt") as file:
+        names = file.keys()
+        stored = {key.removeprefix("latent_policy."): key for key in names if key.startswith("latent_policy.")}
+        return stored.keys() != own.keys() or any(
+            tuple(file.get_slice(key).get_shape()) != tuple(own[name].shape) for name, key in stored.items()
+        )
+
+
+def _load_without_latent_policy(model: SkillRetPolicy, model_file: str, map_location: str) -> SkillRetPolicy:
+    """Load a stage-1 checkpoint's skills and statistics, keeping the stage-2 model's own latent policy: stage 1
+    never trains it, so nothing is lost."""
+    state = load_file(model_file, device=str(map_location))
+    missing, unexpected = model.load_state_dict(
+        {key: value for key, value in state.items() if not key.startswith("latent_policy.")}, strict=False
+    )
+    if unexpected or any(not key.startswith("latent_policy.") for key in missing):
+        raise ValueError(f"{model_file} does not hold a skillret model: missing {missing}, unexpected {unexpected}.")
+    logging.info("Stage 1 checkpoint %s: skills loaded; the latent policy starts fresh (another head).", model_file)
+    return model
