@@ -154,6 +154,7 @@ DESCRIPTIONS = {
     "mlp": f"MLP 3x512, chunk {CHUNK}, execute {EXECUTE}",
     "rnn": f"BC-RNN: LSTM 2x400 over {RNN_HORIZON} steps, hidden state reset every {RNN_HORIZON}",
 }
+LABELS = {"mlp": "MLP (current observation)", "rnn": "BC-RNN (history of 10)"}  # the ladder plot's legend
 DEFAULT_BATCH = {"mlp": 512, "rnn": 100}  # rnn: robomimic's BC-RNN batch
 
 
@@ -329,15 +330,14 @@ def plot_curves(folder: Path) -> Path:
     return out
 
 
-def plot_ladder(results: Path = RESULTS) -> Path:
-    """Success per task (ladder order) for each reference with stored results, against the calibration goals:
+def plot_ladder(folders: dict[str, Path], out: Path) -> Path:
+    """Success per task (ladder order) for each reference's results folder, against the calibration goals:
     >= 60 % on single steps, 15-50 % on multi-step tasks (the seed's target-only regime)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    folders = {"MLP (current observation)": results, "BC-RNN (history of 10)": results / "bc_rnn"}
     found = {label: {p.stem: json.loads(p.read_text()) for p in f.glob("*.json")} for label, f in folders.items()}
     tasks = sorted({t for rows in found.values() for t in rows}, key=lambda t: (TASKS[t].level, t))
     figure, axis = plt.subplots(figsize=(max(6, 0.9 * len(tasks)), 4))
@@ -350,7 +350,6 @@ def plot_ladder(results: Path = RESULTS) -> Path:
     axis.set_xticks(range(len(tasks)), [f"{t}\n(level {TASKS[t].level})" for t in tasks], fontsize=7, rotation=30)
     axis.set(ylabel="success (%), 50 held-out rollouts", ylim=(0, 105), title="Converged BC on 30 demos per task")
     axis.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-    out = results / "ladder.png"
     write_atomic(out, lambda tmp: figure.savefig(tmp, dpi=110, bbox_inches="tight", format="png"))
     plt.close(figure)
     return out
@@ -394,7 +393,11 @@ def main() -> None:
         write_text_atomic(args.results / "results.md", table(args.results))
     print(table(args.results))
     print(f"loss curves: {plot_curves(args.results)}")
-    print(f"success per task and reference: {plot_ladder()}")
+    if args.results.resolve() in (RESULTS, RESULTS / "bc_rnn"):  # the published results: both references in one plot
+        folders, ladder = {LABELS["mlp"]: RESULTS, LABELS["rnn"]: RESULTS / "bc_rnn"}, RESULTS / "ladder.png"
+    else:  # results kept elsewhere never overwrite the published plot
+        folders, ladder = {LABELS[args.reference]: args.results}, args.results / "ladder.png"
+    print(f"success per task and reference: {plot_ladder(folders, ladder)}")
 
 
 if __name__ == "__main__":

@@ -221,7 +221,7 @@ def _plot(rows: list[dict], tasks: list[str]) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ladder = [task.name for task in LADDER]  # the 1- and 2-step tasks
+    ladder = [task.name for task in LADDER if task.level <= 2]  # the 1- and 2-step tasks
     parser.add_argument("--tasks", nargs="+", default=ladder, choices=sorted(TASKS), help="tasks to score")
     parser.add_argument(
         "--play-episodes", type=int, default=48, help=f"play episodes of {PLAY_STEPS} steps (default 48)"

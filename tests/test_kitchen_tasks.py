@@ -180,4 +180,12 @@ def test_play_starts_from_every_built_in_task_scene():
 
     rng = np.random.default_rng(0)
     seen = {play_scene_task(rng).name for _ in range(400)}
-    assert seen == {task.name for task in (*LADDER, *MULTI_STEP)}
+    in_play = [task for task in (*LADDER, *MULTI_STEP) if task.play_scene]
+    assert seen == {task.name for task in in_play}
+
+    # a task kept out of play shares its scene (initial-state distribution) with one in play
+    def scene(task):
+        return sorted(task.init.items()), sorted(task.joints.items())
+
+    for task in (*LADDER, *MULTI_STEP):
+        assert task.play_scene or any(scene(task) == scene(other) for other in in_play), task.name

@@ -60,8 +60,9 @@ def play_scene_task(rng: np.random.Generator):
     """The task whose initial-state distribution a play episode starts from: any built-in task (the ladder and
     the seed's multi-step tasks). Only multi-step scenes gave observations the ladder's scenes never match: a
     single-step task parks its unused objects elsewhere (the pot 13 stds from anything play had seen), which
-    the skill model's observation encoders could not read. Tasks from plugins do not change the play data."""
-    scenes = sorted(BUILT_IN, key=lambda task: task.name)
+    the skill model's observation encoders could not read. Tasks from plugins, and built-in tasks marked
+    `play_scene=False` (their scene is another task's), do not change the play data."""
+    scenes = sorted((task for task in BUILT_IN if task.play_scene), key=lambda task: task.name)
     return scenes[rng.integers(len(scenes))]
 
 
