@@ -637,7 +637,9 @@ def test_each_dataset_id_conditions_its_own_windows(stage1_dir, prior_root, targ
     )
     batch = training_batch(policy.config, TARGET_REPO, target_root, size=5)
     calls = []
-    original = policy.latent_policy.forward
-    policy.latent_policy.forward = lambda history, ids: calls.append(ids.tolist()) or original(history, ids)
+    original = policy.latent_policy.loss
+    policy.latent_policy.loss = lambda history, ids, labels: (
+        calls.append(ids.tolist()) or original(history, ids, labels)
+    )
     policy.forward(batch)
     assert calls == [[TARGET_ID] * 5, [RETRIEVED_ID] * 5]
