@@ -31,7 +31,7 @@ class LatentPolicy(nn.Module):
         self.lstm = nn.LSTM(
             obs_encoder.out_dim + NUM_DATASET_IDS, config.policy_lstm_hidden, config.lstm_layers, batch_first=True
         )
-        # per component: a logit, a mean and a log-scale per latent dimension; without mixtures just z
+        # per component: a logit, and a mean and a raw scale (softplus) per latent dimension; without mixtures just z
         out_dim = self.mixtures * (1 + 2 * self.latent_dim) if self.mixtures else self.latent_dim
         self.head = mlp(config.policy_lstm_hidden, config.policy_mlp, out_dim)
 
