@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 import torch
 from huggingface_hub import ModelCard
 from lerobot.configs.types import FeatureType
-from lerobot.policies.pretrained import PreTrainedPolicy
+from lerobot.policies.pretrained import PreTrainedPolicy, resolve_safetensors_device
 from lerobot.utils.constants import ACTION
 from safetensors import SafetensorError, safe_open
 from safetensors.torch import load_file
@@ -377,9 +377,11 @@ class SkillRetPolicy(PreTrainedPolicy):
     ) -> "SkillRetPolicy":
         """LeRobot's loader, with errors that name the file and the fix instead of a raw size mismatch or
         `SafetensorError` (a stage-2 dataset with another layout than the checkpoint's; a truncated file)."""
-        _check_checkpoint_features(model.config, Path(model_file).parent)
+        saved = Path(model_file).parent / "config.json"
+        stored = json.loads(saved.read_text()) if saved.is_file() else None
+        _check_checkpoint_features(model.config, Path(model_file).parent, stored)
         try:
-            if _stage1_policy_differs(model, model_file):
+            if _stage1_policy_differs(model, model_file, stored):
                 return _load_without_latent_policy(model, model_file, map_location)
             return super()._load_as_safetensor(model, model_file, map_location, strict)
         except SafetensorError as error:
@@ -423,13 +425,12 @@ class SkillRetPolicy(PreTrainedPolicy):
         return ModelCard(card.content + method)
 
 
-def _check_checkpoint_features(config: SkillRetConfig, folder: Path) -> None:
+def _check_checkpoint_features(config: SkillRetConfig, folder: Path, stored: dict | None) -> None:
     """Refuse to load weights trained on another observation/action layout than `config` describes (stage 2 on a
-    target dataset whose features differ from the prior's), naming the differing features."""
-    saved = folder / "config.json"
-    if not saved.is_file():
+    target dataset whose features differ from the prior's), naming the differing features. `stored`: the
+    checkpoint's config.json, if it has one."""
+    if stored is None:
         return
-    stored = json.loads(saved.read_text())
     before = {
         key: tuple(ft["shape"])
         for key, ft in {**stored.get("input_features", {}), **stored.get("output_features", {})}.items()
@@ -447,11 +448,10 @@ def _check_checkpoint_features(config: SkillRetConfig, folder: Path) -> None:
         )
 
 
-def _stage1_policy_differs(model: SkillRetPolicy, model_file: str) -> bool:
-    """Whether a stage-2 model is loading a stage-1 checkpoint whose (never trained) latent policy has other shapes,
-    e.g. stage 2 asks for a mixture head (`policy_mixtures`) or another policy width."""
-    saved = Path(model_file).parent / "config.json"
-    if model.config.stage != "policy" or not saved.is_file() or json.loads(saved.read_text()).get("stage") != "skills":
+def _stage1_policy_differs(model: SkillRetPolicy, model_file: str, stored: dict | None) -> bool:
+    """Whether a stage-2 model is loading a stage-1 checkpoint (`stored`: its config.json) whose never trained
+    latent policy has other shapes, e.g. stage 2 asks for a mixture head (`policy_mixtures`) or another width."""
+    if model.config.stage != "policy" or stored is None or stored.get("stage") != "skills":
         return False
     own = model.latent_policy.state_dict()
     with safe_open(model_file, framework="pt") as file:
@@ -465,7 +465,7 @@ def _stage1_policy_differs(model: SkillRetPolicy, model_file: str) -> bool:
 def _load_without_latent_policy(model: SkillRetPolicy, model_file: str, map_location: str) -> SkillRetPolicy:
     """Load a stage-1 checkpoint's skills and statistics, keeping the stage-2 model's own latent policy: stage 1
     never trains it, so nothing is lost."""
-    state = load_file(model_file, device=str(map_location))
+    state = load_file(model_file, device=resolve_safetensors_device(map_location))
     missing, unexpected = model.load_state_dict(
         {key: value for key, value in state.items() if not key.startswith("latent_policy.")}, strict=False
     )
