@@ -111,6 +111,22 @@ def test_kl_and_temporal_terms_reach_the_encoder(prior_root):
     assert _grad_norm(policy.skills.temporal) > 0
 
 
+@pytest.mark.parametrize("inputs", ["endpoints", "first"])
+def test_the_skill_prior_sees_the_configured_observations(prior_root, inputs):
+    """The prior sees o_0 and o_{H-1} ("endpoints", the paper's code) or o_0 alone ("first", SPiRL)."""
+    torch.manual_seed(0)
+    config = tiny_config(skill_prior_inputs=inputs)
+    policy = build_policy(config, PRIOR_REPO, prior_root).eval()
+    window = policy._window(training_batch(config, PRIOR_REPO, prior_root))
+    later = {key: value.clone() for key, value in window.items()}
+    later["observation.state"][:, 1:] += 1.0  # every observation after o_0
+    first = {key: value.clone() for key, value in window.items()}
+    first["observation.state"][:, 0] += 1.0
+    mean = policy.skills.prior(window)[0]
+    assert not torch.allclose(policy.skills.prior(first)[0], mean)
+    assert torch.allclose(policy.skills.prior(later)[0], mean) == (inputs == "first")
+
+
 def test_padded_steps_do_not_contribute(prior_root):
     config = tiny_config()
     policy = build_policy(config, PRIOR_REPO, prior_root).eval()  # eval: z = mean, deterministic

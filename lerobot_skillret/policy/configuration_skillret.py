@@ -16,6 +16,7 @@ from lerobot.optim.optimizers import AdamConfig
 STAGES = ("skills", "policy")
 RETRIEVAL_METRICS = ("l2", "kl")
 RETRIEVED_LATENTS = ("stored", "reencode")
+SKILL_PRIOR_INPUTS = ("endpoints", "first")
 SKILL_NORMALIZATION_MODES = (NormalizationMode.IDENTITY, NormalizationMode.MEAN_STD, NormalizationMode.MIN_MAX)
 
 
@@ -53,6 +54,9 @@ class SkillRetConfig(PreTrainedConfig):
     decoder_lstm_hidden: int = 1000  # closed-loop skill decoder: LSTM hidden units, input (z, o_t) each step
     decoder_mlp: tuple[int, ...] = (1024, 1024)  # skill decoder: MLP hidden sizes -> tanh action
     prior_mlp: tuple[int, ...] = (1024, 1024)  # learned prior p(z | o_0, o_{H-1}): hidden sizes
+    skill_prior_inputs: str = "endpoints"  # what the learned prior sees: "endpoints" o_0 and o_{H-1} (the paper's
+    # code), or "first" o_0 only (SPiRL's state-conditioned prior: with a larger kl_weight the skill keeps only what
+    # the current state does not already tell, which is what the latent policy has to predict)
     tc_mlp: tuple[int, ...] = (128, 128)  # temporal-prediction MLP on two encoder means: hidden sizes
 
     # --- Latent policy (Table 7).
@@ -179,6 +183,8 @@ class SkillRetConfig(PreTrainedConfig):
                 fail(name, getattr(self, name), "it must be >= 1")
         if self.policy_mixtures < 0:
             fail("policy_mixtures", self.policy_mixtures, "use 0 (regress z, the paper) or a number of components >= 1")
+        if self.skill_prior_inputs not in SKILL_PRIOR_INPUTS:
+            fail("skill_prior_inputs", self.skill_prior_inputs, f"use one of {SKILL_PRIOR_INPUTS}")
         if self.policy_obs_noise < 0:
             fail("policy_obs_noise", self.policy_obs_noise, "a noise standard deviation must be >= 0")
         if self.skill_steps is not None and not 1 <= self.skill_steps <= self.horizon:

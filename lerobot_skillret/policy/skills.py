@@ -3,7 +3,7 @@
 - encoder q(z | o_t..t+H-1, a_t..t+H-1): 2-layer LSTM over (encoded obs, action), MLP -> mean, log-variance;
 - closed-loop decoder p(a_t | o_t, z): 2-layer LSTM fed (z, o_t) at every step, MLP, then tanh for MIN_MAX actions
   (the paper; actions in [-1, 1]) or nothing for MEAN_STD ones;
-- learned prior p(z | o_0, o_{H-1}) (the window's first and last observation);
+- learned prior p(z | o_0, o_{H-1}) (the window's first and last observation), or p(z | o_0) as in SPiRL;
 - temporal predictor m(mu, mu') -> d, the step offset between two windows of one episode.
 
 Every tensor here is already normalised by the policy. A window is a dict of observation tensors (B, H, ...),
@@ -91,16 +91,19 @@ class SkillDecoder(nn.Module):
 
 
 class SkillPrior(nn.Module):
-    """p(z | o_0, o_{H-1}): the KL term pulls the encoder towards what the window's endpoints predict."""
+    """p(z | o_0, o_{H-1}), or p(z | o_0) (`skill_prior_inputs="first"`): the KL term pulls the encoder towards what
+    the window's endpoints, or its first state, predict."""
 
     def __init__(self, config: SkillRetConfig, obs_encoder: ObservationEncoder) -> None:
         super().__init__()
         self.obs_encoder = obs_encoder
-        self.net = mlp(2 * obs_encoder.out_dim, config.prior_mlp, 2 * config.latent_dim)
+        self.endpoints = config.skill_prior_inputs == "endpoints"
+        width = (2 if self.endpoints else 1) * obs_encoder.out_dim
+        self.net = mlp(width, config.prior_mlp, 2 * config.latent_dim)
 
     def forward(self, window: Window) -> tuple[Tensor, Tensor]:
         obs = self.obs_encoder(window)
-        features = torch.cat([obs[:, 0], last_valid(obs, window["valid"])], dim=-1)
+        features = torch.cat([obs[:, 0], last_valid(obs, window["valid"])], dim=-1) if self.endpoints else obs[:, 0]
         mean, log_var = self.net(features).chunk(2, dim=-1)
         return mean, log_var
 
