@@ -53,7 +53,7 @@ class SkillRetConfig(PreTrainedConfig):
     encoder_mlp: tuple[int, ...] = (1024, 1024)  # skill encoder: MLP hidden sizes -> (mean, log-variance)
     decoder_lstm_hidden: int = 1000  # closed-loop skill decoder: LSTM hidden units, input (z, o_t) each step
     decoder_mlp: tuple[int, ...] = (1024, 1024)  # skill decoder: MLP hidden sizes -> tanh action
-    prior_mlp: tuple[int, ...] = (1024, 1024)  # learned prior p(z | o_0, o_{H-1}): hidden sizes
+    prior_mlp: tuple[int, ...] = (1024, 1024)  # learned prior (see skill_prior_inputs): hidden sizes
     skill_prior_inputs: str = "endpoints"  # what the learned prior sees: "endpoints" o_0 and o_{H-1} (the paper's
     # code), or "first" o_0 only (SPiRL's state-conditioned prior: with a larger kl_weight the skill keeps only what
     # the current state does not already tell, which is what the latent policy has to predict)
@@ -64,7 +64,7 @@ class SkillRetConfig(PreTrainedConfig):
     policy_mlp: tuple[int, ...] = ()  # policy: MLP hidden sizes after the LSTM (the seed names none)
 
     # --- Losses.
-    kl_weight: float = 1e-5  # beta: weight of KL(q(z|window) || p(z|o_0, o_{H-1}))
+    kl_weight: float = 1e-5  # beta: weight of KL(q(z|window) || learned prior), the prior as skill_prior_inputs says
     tc_weight: float = 1e-6  # alpha: weight of the temporal-prediction loss (offset in raw steps)
     tc_max_offset: int = 50  # the paired window is shifted by d in [-tc_max_offset, tc_max_offset] steps
     retrieved_weight: float = 1.0  # gamma: weight of the retrieved windows' policy loss (0.15 for real tasks)
