@@ -17,6 +17,7 @@ STAGES = ("skills", "policy")
 RETRIEVAL_METRICS = ("l2", "kl")
 RETRIEVED_LATENTS = ("stored", "reencode")
 SKILL_PRIOR_INPUTS = ("endpoints", "first")
+POLICY_SUPERVISION = ("last", "every_step")
 SKILL_NORMALIZATION_MODES = (NormalizationMode.IDENTITY, NormalizationMode.MEAN_STD, NormalizationMode.MIN_MAX)
 
 
@@ -78,6 +79,9 @@ class SkillRetConfig(PreTrainedConfig):
     # by their average; rollouts take the most probable component's mean
     policy_obs_noise: float = 0.0  # not in the paper: std of Gaussian noise on the policy's normalised low-dim
     # history during training, so states just off the demonstrations map to nearby skills
+    policy_supervision: str = "last"  # which of the policy's F history steps are supervised: "last", the anchor
+    # (the paper: one z per history), or "every_step": step t is also labelled with the current encoder's z of the
+    # window starting at t (the public implementation; F times the labels, and histories as short as one step)
 
     # --- Optimisation (Table 7; batch size 16 is `--batch_size`).
     skill_lr: float = 5e-4  # Adam learning rate of the skill VAE (encoder, decoder, prior)
@@ -185,6 +189,8 @@ class SkillRetConfig(PreTrainedConfig):
             fail("policy_mixtures", self.policy_mixtures, "use 0 (regress z, the paper) or a number of components >= 1")
         if self.skill_prior_inputs not in SKILL_PRIOR_INPUTS:
             fail("skill_prior_inputs", self.skill_prior_inputs, f"use one of {SKILL_PRIOR_INPUTS}")
+        if self.policy_supervision not in POLICY_SUPERVISION:
+            fail("policy_supervision", self.policy_supervision, f"use one of {POLICY_SUPERVISION}")
         if self.policy_obs_noise < 0:
             fail("policy_obs_noise", self.policy_obs_noise, "a noise standard deviation must be >= 0")
         if self.skill_steps is not None and not 1 <= self.skill_steps <= self.horizon:

@@ -35,12 +35,13 @@ class LatentPolicy(nn.Module):
         out_dim = self.mixtures * (1 + 2 * self.latent_dim) if self.mixtures else self.latent_dim
         self.head = mlp(config.policy_lstm_hidden, config.policy_mlp, out_dim)
 
-    def _features(self, history: Mapping[str, Tensor], dataset_id: Tensor) -> Tensor:
+    def _features(self, history: Mapping[str, Tensor], dataset_id: Tensor, every_step: bool = False) -> Tensor:
+        """Head outputs at the last history step (B, out), or at every step (B, F, out)."""
         obs = self.obs_encoder(history)
         one_hot = F.one_hot(dataset_id, NUM_DATASET_IDS).to(obs.dtype)
         features = torch.cat([obs, one_hot[:, None, :].expand(-1, obs.shape[1], -1)], dim=-1)
         outputs, _ = self.lstm(features)
-        return self.head(outputs[:, -1])
+        return self.head(outputs if every_step else outputs[:, -1])
 
     def _mixture(self, out: Tensor) -> MixtureSameFamily:
         size = self.mixtures * self.latent_dim
@@ -61,12 +62,22 @@ class LatentPolicy(nn.Module):
         out = self._features(history, dataset_id)
         return self._most_probable(self._mixture(out)) if self.mixtures else out
 
-    def loss(self, history: Mapping[str, Tensor], dataset_id: Tensor, labels: Tensor) -> tuple[Tensor, Tensor]:
-        """Per-window loss (B,) against the encoder's skills `labels` (B, latent), and the skill `forward` picks.
+    def loss(
+        self, history: Mapping[str, Tensor], dataset_id: Tensor, labels: Tensor, valid: Tensor | None = None
+    ) -> tuple[Tensor, Tensor]:
+        """Per-window loss (B,) against the encoder's skills, and the skill `forward` picks at the last step.
 
-        Squared error summed over latent dimensions (the paper), or the mixture's negative log-likelihood."""
-        out = self._features(history, dataset_id)
-        if not self.mixtures:
-            return (out - labels).pow(2).sum(dim=-1), out
-        mixture = self._mixture(out)
-        return -mixture.log_prob(labels), self._most_probable(mixture)
+        `labels` (B, latent) supervise the last history step; (B, F, latent) with `valid` (B, F) supervise every
+        step (the loss averages the valid ones). Squared error summed over latent dimensions (the paper), or the
+        mixture's negative log-likelihood."""
+        out = self._features(history, dataset_id, every_step=labels.ndim == 3)
+        if self.mixtures:
+            mixture = self._mixture(out.flatten(0, -2))
+            per_step, picked = -mixture.log_prob(labels.flatten(0, -2)), self._most_probable(mixture)
+            per_step, picked = per_step.reshape(labels.shape[:-1]), picked.reshape(labels.shape)
+        else:
+            per_step, picked = (out - labels).pow(2).sum(dim=-1), out
+        if labels.ndim == 2:
+            return per_step, picked
+        weight = valid.to(per_step.dtype)
+        return (per_step * weight).sum(dim=1) / weight.sum(dim=1).clamp(min=1.0), picked[:, -1]

@@ -242,7 +242,8 @@ class SkillRetPolicy(PreTrainedPolicy):
                 labels, _ = self.skills.encoder(self._window(batch))
 
         target_ids = torch.full((size,), TARGET_ID, dtype=torch.long, device=device)
-        policy_loss, predicted = self.latent_policy.loss(self._noisy_history(batch), target_ids, labels)
+        target_labels = self._policy_labels(batch, data.own, labels)
+        policy_loss, predicted = self.latent_policy.loss(self._noisy_history(batch), target_ids, *target_labels)
         policy_loss = policy_loss.mean()
         terms["policy_target_loss"] = policy_loss.detach()
         if config.policy_action_weight > 0:  # decoded like `imitation_error`; also trains a fine-tuned decoder
@@ -258,13 +259,32 @@ class SkillRetPolicy(PreTrainedPolicy):
                 with torch.no_grad():
                     retrieved_labels, _ = self.skills.encoder(self._window(retrieved))
             retrieved_ids = torch.full((size,), RETRIEVED_ID, dtype=torch.long, device=device)
-            retrieved_loss, _ = self.latent_policy.loss(self._noisy_history(retrieved), retrieved_ids, retrieved_labels)
+            retrieved_labels = self._policy_labels(retrieved, data.retrieved.source, retrieved_labels)
+            retrieved_loss, _ = self.latent_policy.loss(
+                self._noisy_history(retrieved), retrieved_ids, *retrieved_labels
+            )
             retrieved_loss = retrieved_loss.mean()
             policy_loss = policy_loss + config.retrieved_weight * retrieved_loss
             terms["policy_retrieved_loss"] = retrieved_loss.detach()
 
         terms["policy_loss"] = policy_loss.detach()
         return loss + policy_loss, {name: float(value) for name, value in terms.items()}
+
+    def _policy_labels(self, raw: Batch, source: "WindowSource", last: Tensor) -> tuple[Tensor, Tensor | None]:
+        """The latent policy's labels for the history of `raw`: the anchor's skills `last` (B, latent), or with
+        `policy_supervision="every_step"` (B, F, latent) with a valid mask (B, F): history step t is labelled with
+        the current encoder's mean of the window starting at t, the anchor's with `last`. Steps padded before the
+        episode's start have no window of their own and are masked."""
+        history = self.config.history
+        if self.config.policy_supervision == "last" or history == 1:
+            return last, None
+        anchors = raw["index"].reshape(-1, 1).cpu()
+        padded = raw[f"{self.observation_keys[0]}_is_pad"][:, :history].cpu().bool()
+        starts = torch.where(padded, anchors, anchors + torch.arange(1 - history, 1))
+        with torch.no_grad():
+            means, _ = self.skills.encoder(self._window(source.gather(starts[:, :-1].reshape(-1), self._device())))
+        labels = torch.cat([means.reshape(len(anchors), history - 1, -1), last[:, None]], dim=1)
+        return labels, ~padded.to(self._device())
 
     # --- retrieval --------------------------------------------------------------------------------------------
 
