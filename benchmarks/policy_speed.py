@@ -5,7 +5,9 @@ retrieved windows) + backward + Adam step, on low-dim observations shaped like t
 lerobot-train gives them (loading the batch itself is not timed). select_action is timed per step on CPU, batch 1,
 low-dim, against ACT with LeRobot's default sizes on the same observation (default chunking, and chunk = H).
 It also prints where a stage-1 step spends its time and how fast its LSTM kernels run against a dense matmul of the
-same size on the same core: the bound on what a faster implementation at the same width can gain.
+same size on the same core: the bound on what a faster implementation at the same width can gain in float32; and
+stage-1 throughput (windows per second on one core) of today's float32 step against `--policy.use_amp=true` (bf16
+autocast, as lerobot-train's Accelerator runs it) at batch 64 and 128, the settings timed in alternation in one run.
 
 Run: `.venv/bin/python benchmarks/policy_speed.py` (~2-4 min on 2 cores; `--skip-paper` for ~1 min).
 """
@@ -47,6 +49,7 @@ def _parse() -> argparse.Namespace:
     parser.add_argument("--threads", type=int, default=1, help="torch intra-op threads (1 is stable when shared)")
     parser.add_argument("--skip-paper", action="store_true", help="skip the GPU-scale paper config (slow on CPU)")
     parser.add_argument("--act-steps", type=int, default=300, help="select_action steps timed per policy")
+    parser.add_argument("--rounds", type=int, default=5, help="alternating rounds of the stage-1 throughput settings")
     return parser.parse_args()
 
 
@@ -81,14 +84,16 @@ def batches(policy: SkillRetPolicy, root: Path, repo_id: str, batch_size: int, c
     return out
 
 
-def time_training(policy: SkillRetPolicy, data: list[dict], warmup: int = 2) -> float:
-    """Median seconds per forward + backward + Adam step."""
+def time_training(policy: SkillRetPolicy, data: list[dict], warmup: int = 2, amp: bool = False) -> float:
+    """Median seconds per forward + backward + Adam step (`amp`: the forward under bf16 autocast, as lerobot-train
+    runs it with `--policy.use_amp=true` on CPU)."""
     optimizer = torch.optim.Adam(policy.get_optim_params())
     policy.train()
     times = []
     for i, batch in enumerate(data):
         start = time.perf_counter()
-        loss, _ = policy.forward(batch)
+        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=amp):
+            loss, _ = policy.forward(batch)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -182,6 +187,32 @@ def stage1_breakdown(policy: SkillRetPolicy, data: list[dict]) -> None:
     )
 
 
+def stage1_throughput(prior: Path, rounds: int) -> None:
+    """Stage-1 windows per second on one core: today's float32 step (batch 64, the benchmark's) against bf16
+    autocast (`--policy.use_amp=true`) at batch 64 and 128, alternated for `rounds` rounds so that a machine
+    shared with other work slows every setting alike; medians and their ratios to float32 at batch 64.
+
+    Why bf16: the step is bound by the LSTMs' float32 arithmetic (see the breakdown); oneDNN runs their bf16
+    kernels on AVX512-BF16 / AMX cores at about twice the rate, and a bigger batch then pays (in float32 it does
+    not: the kernels are already near the core's matmul rate)."""
+    settings = {"float32, batch 64 (today)": (64, False), "bf16 autocast, batch 64": (64, True)}
+    settings["bf16 autocast, batch 128"] = (128, True)
+    policy = make_policy(policy_fields("cpu"), prior, "bench/prior")
+    data = {size: batches(policy, prior, "bench/prior", size, 10) for size in {64, 128}}
+    rates: dict[str, list[float]] = {name: [] for name in settings}
+    for _ in range(rounds):
+        for name, (size, amp) in settings.items():
+            rates[name].append(size / time_training(policy, data[size], amp=amp))
+    base = statistics.median(rates["float32, batch 64 (today)"])
+    print(f"\n== stage-1 throughput on one core (cpu config, {rounds} alternating rounds; median) ==")
+    for name, values in rates.items():
+        rate = statistics.median(values)
+        print(f"{name:>28}: {rate:6.0f} windows/s   x{rate / base:.2f}   (rounds: {min(values):.0f}-{max(values):.0f})")
+    cpuinfo = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
+    native = "yes" if "avx512_bf16" in cpuinfo or "amx_bf16" in cpuinfo else "no (or unknown)"
+    print(f"bf16 instructions on this CPU: {native}; without them bf16 is emulated and use_amp does not pay")
+
+
 def time_select_action(policy, observations: list[dict]) -> float:
     """Mean seconds per select_action call over an episode-like sequence (reset first)."""
     policy.reset()
@@ -252,6 +283,7 @@ def main() -> None:
 
         cpu = make_policy(policy_fields("cpu"), prior, "bench/prior")
         stage1_breakdown(cpu, batches(cpu, prior, "bench/prior", 64, 8))
+        stage1_throughput(prior, args.rounds)
 
         print("\n== select_action latency (CPU, batch 1, low-dim; mean per step) ==")
         skill = make_policy(policy_fields("cpu"), prior, "bench/prior").eval()

@@ -133,10 +133,12 @@ def test_two_stages_with_lerobot_train_then_lerobot_eval(tmp_path, monkeypatch):
     lerobot_train(
         *stage2_cli(stage1, target, prior, retrieval, tmp_path / "stage2"),
         "--policy.fast_windows=false",  # stage 1 used cpu.json's fast windows; this covers LeRobot's own windows
+        "--policy.use_amp=true",  # bf16 autocast (LeRobot's Accelerator) in training, and so in lerobot-eval below
     )
     stage2 = tmp_path / "stage2" / "checkpoints" / "last" / "pretrained_model"
     saved = json.loads((stage2 / "config.json").read_text())
     assert saved["stage"] == "policy" and saved["skills_checkpoint_fingerprint"] == checkpoint_fingerprint(stage1)
+    assert saved["use_amp"]
     # the normalisation the skill model was trained with survives --policy.path on another dataset
     before, after = load_file(str(stage1 / "model.safetensors")), load_file(str(stage2 / "model.safetensors"))
     for name in [n for n in before if n.startswith("normalizer.")]:

@@ -378,6 +378,36 @@ def test_stage2_refuses_bad_retrieval_setups(stage1_dir, prior_root, target_root
         ).forward(batch)
 
 
+def test_bf16_autocast_keeps_losses_latents_and_actions_float32(stage1_dir, prior_root, target_root, tmp_path):
+    """`--policy.use_amp=true` runs the forward under CPU bf16 autocast (LeRobot's Accelerator in lerobot-train,
+    torch.autocast in lerobot-eval): the arithmetic is bf16, but the losses, the latents that labels and the
+    retrieval file are made of, and the actions sent to the env (numpy has no bf16) must be float32."""
+    retrieval = write_retrieval(tmp_path / "ret.safetensors", stage1_dir, prior_root, target_root, [1, 9, 30, 77])
+    policy = stage2_policy(
+        stage1_dir, target_root, retrieval_path=str(retrieval), prior_repo_id=PRIOR_REPO, prior_root=str(prior_root)
+    ).train()
+    batch = training_batch(policy.config, TARGET_REPO, target_root)
+    torch.manual_seed(0)  # the window samplers seed from torch's RNG: the same windows in both passes
+    _, full_info = policy.forward(batch)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        torch.manual_seed(0)
+        policy._training_data = None
+        loss, info = policy.forward(batch)
+        assert policy.skills.decoder.lstm(torch.zeros(1, 2, policy.skills.decoder.lstm.input_size))[0].dtype == (
+            torch.bfloat16
+        )  # the autocast really runs the LSTMs in bf16
+        mean, _ = policy.encode_skill(batch)
+        policy.reset()
+        action = policy.select_action({key: batch[key][:, -1] for key in policy.observation_keys})
+    assert loss.dtype == mean.dtype == action.dtype == torch.float32
+    assert set(info) == set(full_info)
+    for name, value in info.items():  # the same losses up to bf16's rounding
+        assert value == pytest.approx(full_info[name], rel=0.1, abs=1e-3), name
+    loss.backward()
+    assert all(p.grad.dtype == torch.float32 for p in policy.parameters() if p.grad is not None)
+    assert _grad_norm(policy.latent_policy) > 0 and _grad_norm(policy.skills.encoder) > 0
+
+
 @pytest.mark.parametrize("skill_steps", [None, 3])
 def test_select_action_runs_skills_closed_loop(prior_root, skill_steps):
     config = tiny_config(skill_steps=skill_steps)

@@ -36,12 +36,12 @@ class LatentPolicy(nn.Module):
         self.head = mlp(config.policy_lstm_hidden, config.policy_mlp, out_dim)
 
     def _features(self, history: Mapping[str, Tensor], dataset_id: Tensor, every_step: bool = False) -> Tensor:
-        """Head outputs at the last history step (B, out), or at every step (B, F, out)."""
+        """Head outputs at the last history step (B, out), or at every step (B, F, out); float32 under autocast."""
         obs = self.obs_encoder(history)
         one_hot = F.one_hot(dataset_id, NUM_DATASET_IDS).to(obs.dtype)
         features = torch.cat([obs, one_hot[:, None, :].expand(-1, obs.shape[1], -1)], dim=-1)
         outputs, _ = self.lstm(features)
-        return self.head(outputs if every_step else outputs[:, -1])
+        return self.head(outputs if every_step else outputs[:, -1]).float()
 
     def _mixture(self, out: Tensor) -> MixtureSameFamily:
         size = self.mixtures * self.latent_dim

@@ -6,7 +6,9 @@
 - learned prior p(z | o_0, o_{H-1}) (the window's first and last observation), or p(z | o_0) as in SPiRL;
 - temporal predictor m(mu, mu') -> d, the step offset between two windows of one episode.
 
-Every tensor here is already normalised by the policy. A window is a dict of observation tensors (B, H, ...),
+Every tensor here is already normalised by the policy. Each module returns float32 even under bf16 autocast
+(`--policy.use_amp=true`, the LSTMs' and matmuls' arithmetic in bf16): losses, distributions, the retrieval file's
+latents and the actions a rollout sends stay in full precision. A window is a dict of observation tensors (B, H, ...),
 `action` (B, H, A) and `valid` (B, H) bool: False on steps padded past the episode's end (a prefix is valid).
 """
 
@@ -59,7 +61,7 @@ class SkillEncoder(nn.Module):
         """(mean, log_var), each (B, latent). Read at the last valid step, so padded steps never shape z."""
         features = torch.cat([self.obs_encoder(window), window["action"]], dim=-1)
         outputs, _ = self.lstm(features)
-        mean, log_var = self.head(last_valid(outputs, window["valid"])).chunk(2, dim=-1)
+        mean, log_var = self.head(last_valid(outputs, window["valid"])).float().chunk(2, dim=-1)
         return mean, log_var
 
 
@@ -80,14 +82,14 @@ class SkillDecoder(nn.Module):
         obs = self.obs_encoder(observation)
         features = torch.cat([z[:, None, :].expand(-1, obs.shape[1], -1), obs], dim=-1)
         outputs, state = self.lstm(features, state)
-        return self.squash(self.head(outputs)), state
+        return self.squash(self.head(outputs).float()), state
 
     def step(self, z: Tensor, observation: Window, state: CellState | None) -> tuple[Tensor, CellState]:
         """One rollout step: z (B, L), observations (B, ...) -> action (B, A) and the per-layer (h, c) state to
         pass to the next step (the same weights as `forward`, run cell by cell: see `lstm_steps`)."""
         features = torch.cat([z, self.obs_encoder(observation)], dim=-1)
         output, state = lstm_steps(self.lstm, features[:, None], state)
-        return self.squash(self.head(output)), state
+        return self.squash(self.head(output).float()), state
 
 
 class SkillPrior(nn.Module):
@@ -104,7 +106,7 @@ class SkillPrior(nn.Module):
     def forward(self, window: Window) -> tuple[Tensor, Tensor]:
         obs = self.obs_encoder(window)
         features = torch.cat([obs[:, 0], last_valid(obs, window["valid"])], dim=-1) if self.endpoints else obs[:, 0]
-        mean, log_var = self.net(features).chunk(2, dim=-1)
+        mean, log_var = self.net(features).float().chunk(2, dim=-1)
         return mean, log_var
 
 
@@ -190,7 +192,7 @@ class SkillModel(nn.Module):
             if offset is None:
                 raise ValueError("SkillModel.loss: a temporal pair needs its offset d.")
             pair_mean = means[batch : 2 * batch]
-            predicted = self.temporal(torch.cat([mean, pair_mean], dim=-1)).squeeze(-1)
+            predicted = self.temporal(torch.cat([mean, pair_mean], dim=-1)).float().squeeze(-1)
             tc = (predicted - offset.to(predicted.dtype)).pow(2).mean()
             total = total + config.tc_weight * tc
             terms["tc_loss"] = tc
@@ -202,7 +204,7 @@ class SkillModel(nn.Module):
         if self.inverse_dynamics is not None:
             obs = self.prior.obs_encoder(window)
             endpoints = torch.cat([obs[:, 0], last_valid(obs, window["valid"])], dim=-1)
-            inverse = (self.inverse_dynamics(endpoints) - mean.detach()).pow(2).sum(dim=-1).mean()
+            inverse = (self.inverse_dynamics(endpoints).float() - mean.detach()).pow(2).sum(dim=-1).mean()
             total = total + config.inverse_dynamics_weight * inverse
             terms["inverse_dynamics_loss"] = inverse
         return total, terms, mean
