@@ -195,8 +195,11 @@ def stage1_throughput(prior: Path, rounds: int) -> None:
     Why bf16: the step is bound by the LSTMs' float32 arithmetic (see the breakdown); oneDNN runs their bf16
     kernels on AVX512-BF16 / AMX cores at about twice the rate, and a bigger batch then pays (in float32 it does
     not: the kernels are already near the core's matmul rate)."""
-    settings = {"float32, batch 64 (today)": (64, False), "bf16 autocast, batch 64": (64, True)}
-    settings["bf16 autocast, batch 128"] = (128, True)
+    settings = {
+        "float32, batch 64 (today)": (64, False),
+        "bf16 autocast, batch 64": (64, True),
+        "bf16 autocast, batch 128": (128, True),
+    }
     policy = make_policy(policy_fields("cpu"), prior, "bench/prior")
     data = {size: batches(policy, prior, "bench/prior", size, 10) for size in {64, 128}}
     rates: dict[str, list[float]] = {name: [] for name in settings}
