@@ -193,7 +193,7 @@ def stage1_throughput(prior: Path, rounds: int) -> None:
     shared with other work slows every setting alike; medians and their ratios to float32 at batch 64.
 
     Why bf16: the step is bound by the LSTMs' float32 arithmetic (see the breakdown); oneDNN runs their bf16
-    kernels on AVX512-BF16 / AMX cores at about twice the rate, and a bigger batch then pays (in float32 it does
+    kernels faster on AVX512-BF16 / AMX cores, and a bigger batch then pays (in float32 it does
     not: the kernels are already near the core's matmul rate)."""
     settings = {
         "float32, batch 64 (today)": (64, False),
@@ -201,7 +201,7 @@ def stage1_throughput(prior: Path, rounds: int) -> None:
         "bf16 autocast, batch 128": (128, True),
     }
     policy = make_policy(policy_fields("cpu"), prior, "bench/prior")
-    data = {size: batches(policy, prior, "bench/prior", size, 10) for size in {64, 128}}
+    data = {size: batches(policy, prior, "bench/prior", size, 10) for size, _ in settings.values()}
     rates: dict[str, list[float]] = {name: [] for name in settings}
     for _ in range(rounds):
         for name, (size, amp) in settings.items():
