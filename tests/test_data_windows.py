@@ -239,6 +239,20 @@ def test_nan_column_is_named(dataset_root, tmp_path):
     assert not any((tmp_path / "cache").glob("columns-*"))
 
 
+def test_rows_out_of_index_order_are_refused_by_both_readers(tmp_path):
+    """Windows and retrieval indices are row numbers: a dataset whose `index` column is not 0..N-1 is refused."""
+    image_root = make_synthetic_dataset(tmp_path / "img", num_episodes=2, min_len=5, max_len=5, with_images=True)
+    (path,) = sorted((image_root / "data").glob("*/*.parquet"))
+    table = pq.read_table(path)
+    index = table.column("index").to_numpy().copy()
+    index[[1, 2]] = index[[2, 1]]
+    pq.write_table(table.set_column(table.schema.get_field_index("index"), "index", pa.array(index)), path)
+    with pytest.raises(ValueError, match=r"'index' column .* not 0\.\.9 in row order.*Re-write the dataset"):
+        EpisodeColumns.from_dataset(REPO, image_root, cache_dir=tmp_path / "cache")
+    with pytest.raises(ValueError, match=r"not 0\.\.9 in row order.*Re-write the dataset"):
+        FrameReader(REPO, image_root)
+
+
 def test_missing_root_and_empty_dataset(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"meta/info\.json"):
         EpisodeColumns.from_dataset(REPO, tmp_path / "nowhere")

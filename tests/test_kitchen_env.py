@@ -105,14 +105,14 @@ def test_reward_is_the_fraction_of_goals_met():
 def test_in_a_row_stops_at_the_first_unmet_goal():
     """CALVIN's chain length: goals met at reset are skipped, a later goal met without the earlier one counts 0."""
     from lerobot_skillret.kitchen.predicates import Predicate
-    from lerobot_skillret.kitchen.tasks import Task
+    from lerobot_skillret.kitchen.tasks import Step, Task
 
     def fixed(name: str, value: bool) -> Predicate:
         return Predicate(name, lambda _scene: value)
 
     def chain(now: tuple[bool, ...], at_reset: tuple[bool, ...]) -> int:
         goals = tuple(fixed(f"g{i}", v) for i, v in enumerate(now))
-        return Task("t", "", goals, {}, 10, ()).in_a_row(None, at_reset)
+        return Task("t", "", goals, {}, 10, (Step("toggle", ("light", "on")),)).in_a_row(None, at_reset)
 
     assert chain((True, True, False), (False, False, False)) == 2
     assert chain((False, True, True), (False, False, False)) == 0

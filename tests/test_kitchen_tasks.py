@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -14,7 +16,7 @@ from lerobot_skillret.kitchen import layout
 from lerobot_skillret.kitchen import predicates as P
 from lerobot_skillret.kitchen.primitives import PLACE_REGIONS, PRIMITIVES
 from lerobot_skillret.kitchen.sampling import CLEARANCE, sample_poses
-from lerobot_skillret.kitchen.tasks import TASKS, get_task
+from lerobot_skillret.kitchen.tasks import DEFAULT_JOINTS, TASKS, get_task
 
 
 class FakeScene:
@@ -109,6 +111,25 @@ def test_registry_is_consistent():
                 assert step.args[0] in layout.ITEMS and step.args[1] in PLACE_REGIONS
     with pytest.raises(KeyError, match="Unknown kitchen task"):
         get_task("nope")
+
+
+@pytest.mark.parametrize(
+    ("change", "named"),
+    [
+        ({"init": {"fsh": ("center",)}}, "unknown objects ['fsh']"),
+        ({"init": {"fish": ("frnt_left",)}}, "init['fish'] = ('frnt_left',)"),
+        ({"init": {"fish": ("stove", "center")}}, "init['fish']"),
+        ({"init": {b: ("shelf",) for b in layout.BLOCKS}}, "3 objects start on the shelf"),
+        ({"joints": {**DEFAULT_JOINTS, "drawer_slide": 0.1}}, "joints['drawer_slide'] = 0.1"),
+        ({"joints": {"drawer_slide": 0.0}}, "joints must set exactly"),
+        ({"plan": ()}, "needs goals, a plan"),
+    ],
+)
+def test_a_malformed_task_is_refused_when_defined_naming_the_field(change, named):
+    """A task of your own with a typo fails where it is defined, not as a KeyError inside the sampler."""
+    with pytest.raises(ValueError, match=re.escape(named)) as error:
+        dataclasses.replace(TASKS["fish_in_pan"], **change)
+    assert "'fish_in_pan'" in str(error.value)
 
 
 @pytest.mark.parametrize("name", sorted(TASKS))

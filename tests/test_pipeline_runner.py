@@ -296,6 +296,7 @@ def test_report_has_a_subtask_progress_table(tmp_path: Path) -> None:
     success, progress = report.split("### Subtask progress")
     assert "| skillret | 0.0 ± 0.0 (2) | 0.0 |" in success
     assert "| skillret | 50.0 ± 25.0 (2) | 50.0 |" in progress and "| act | — | — |" in progress
+    assert "- `act`: LeRobot ACT on the target demos" in report.split("### Methods")[1]  # what each row is
 
 
 def test_heldout_table_is_the_final_checkpoints_mean_over_seeds(tmp_path: Path) -> None:

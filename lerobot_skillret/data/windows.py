@@ -184,14 +184,19 @@ def _check_finite(key: str, values: np.ndarray, table: pa.Table, root: Path) -> 
         )
 
 
-def _episode_bounds(index: torch.Tensor, episode: torch.Tensor, root: Path) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per-frame global [start, end) of the frame's episode; episodes must be contiguous runs of rows."""
+def _check_row_index(index: torch.Tensor | np.ndarray, root: Path) -> None:
     n = len(index)
-    if not torch.equal(index, torch.arange(n, dtype=index.dtype)):
+    if not np.array_equal(np.asarray(index), np.arange(n)):
         raise ValueError(
             f"The 'index' column of the dataset at {root} is not 0..{n - 1} in row order; windows and retrieval "
             "indices rely on it. Re-write the dataset with LeRobotDataset.create/add_frame/save_episode."
         )
+
+
+def _episode_bounds(index: torch.Tensor, episode: torch.Tensor, root: Path) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-frame global [start, end) of the frame's episode; episodes must be contiguous runs of rows."""
+    _check_row_index(index, root)
+    n = len(index)
     change = torch.nonzero(episode[1:] != episode[:-1]).flatten() + 1
     starts = torch.cat([torch.zeros(1, dtype=torch.long), change])
     ends = torch.cat([change, torch.tensor([n])])
@@ -269,9 +274,7 @@ class FrameReader:
         self._video_keys = [k for k in keys if k in self.dataset.meta.video_keys]
         table = self.dataset.hf_dataset.data.table
         n = len(self.dataset.hf_dataset)
-        index = _column_to_numpy(table.column("index"), n, ())
-        if not np.array_equal(index, np.arange(n)):
-            raise ValueError(f"The 'index' column of the dataset at {root} is not 0..{n - 1} in row order.")
+        _check_row_index(_column_to_numpy(table.column("index"), n, ()), root)
         self._episode = _column_to_numpy(table.column("episode_index"), n, ())
         self._timestamp = _column_to_numpy(table.column("timestamp"), n, ())
 

@@ -1,6 +1,7 @@
-"""Worker side of data generation: run one episode in a per-process scene and return its arrays.
+"""What a generated dataset contains: the episodes simulated (their seeds), and one episode's arrays.
 
-Workers only simulate; the parent process writes the dataset (one writer, ordered by episode seed).
+Workers only simulate; the parent process writes the dataset (one writer, ordered by episode seed). This module is
+part of the kitchen fingerprint, so everything that decides a dataset's content lives here, not in the CLI.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ PLAY_ACTION_NOISE = 0.05
 PLAY_JITTER = 0.005
 DEMO_ACTION_NOISE = 0.0
 DEMO_JITTER = 0.003
+PLAY_TASK_TEXT = "play"  # the LeRobot task string of every play frame (demos carry their task's description)
+MAX_ATTEMPTS_FACTOR = 3  # demos: give up after this many attempts per requested episode
 
 
 @dataclass
@@ -38,6 +41,15 @@ class Episode:
     initial_state: np.ndarray
     frames: dict[str, list] = field(default_factory=dict)  # dataset key -> per-frame values
     log: list = field(default_factory=list)
+
+
+def episode_jobs(
+    kind: str, seed: int, episodes: int, task: str | None = None, steps: int = 0, cameras: tuple[str, ...] = ()
+) -> list[EpisodeJob]:
+    """The episodes to simulate, in order; episode i's seed depends only on `seed` and i, so the dataset does not
+    depend on the number of workers. Demos get MAX_ATTEMPTS_FACTOR attempts per episode (failures are dropped)."""
+    attempts = episodes if kind == "play" else episodes * MAX_ATTEMPTS_FACTOR
+    return [EpisodeJob(kind, seed * 1_000_003 + i, task=task, steps=steps, cameras=cameras) for i in range(attempts)]
 
 
 _WORKER: dict = {}

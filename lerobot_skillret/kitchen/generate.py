@@ -29,22 +29,16 @@ from tqdm import tqdm
 from lerobot_skillret.data.labels import write_label_names
 from lerobot_skillret.files import staged_dir
 from lerobot_skillret.kitchen import observations as O
-from lerobot_skillret.kitchen.collect import Episode, EpisodeJob, run_episode
+from lerobot_skillret.kitchen.collect import PLAY_TASK_TEXT, Episode, EpisodeJob, episode_jobs, run_episode
 from lerobot_skillret.kitchen.layout import CONTROL_FREQ
 from lerobot_skillret.kitchen.primitives import PRIMITIVES
 from lerobot_skillret.kitchen.tasks import TASKS
 
-PLAY_TASK_TEXT = "play"
 DEFAULT_PLAY_EPISODES = 150
 DEFAULT_PLAY_STEPS = 2000
 DEFAULT_DEMOS = 30
-MAX_ATTEMPTS_FACTOR = 3  # demos: give up after this many attempts per requested episode
 PREFETCH = 2  # jobs started per worker ahead of the next episode due: keeps workers busy, bounds waste
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
-
-
-def _episode_seed(seed: int, index: int) -> int:
-    return seed * 1_000_003 + index
 
 
 def _write_episode(dataset, episode: Episode, task_text: str) -> None:
@@ -130,19 +124,6 @@ def _ordered(jobs: list[EpisodeJob], conns: list[Connection]) -> Iterator[Episod
         yield done.pop(due)
 
 
-def _jobs(args: argparse.Namespace) -> list[EpisodeJob]:
-    cams = tuple(args.cameras)
-    if args.kind == "play":
-        return [
-            EpisodeJob("play", _episode_seed(args.seed, i), steps=args.steps_per_episode, cameras=cams)
-            for i in range(args.episodes)
-        ]
-    return [
-        EpisodeJob("demos", _episode_seed(args.seed, i), task=args.task, cameras=cams)
-        for i in range(args.episodes * MAX_ATTEMPTS_FACTOR)
-    ]
-
-
 def generate(args: argparse.Namespace) -> Path:
     """Generate the dataset described by parsed CLI `args`; returns its root."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
@@ -151,7 +132,8 @@ def generate(args: argparse.Namespace) -> Path:
     if root.exists() and not args.overwrite:
         raise FileExistsError(f"{root} already exists; pass --overwrite or choose another --root")
     features = O.dataset_features(tuple(args.cameras), O.DEFAULT_IMAGE_SIZE)
-    jobs = _jobs(args)
+    steps = getattr(args, "steps_per_episode", 0)  # play only
+    jobs = episode_jobs(args.kind, args.seed, args.episodes, args.task, steps, tuple(args.cameras))
     episodes_meta, attempts, failures, primitive_frames = [], 0, 0, Counter()
     with staged_dir(root) as tmp:  # an interrupted run leaves no dataset behind
         dataset = LeRobotDataset.create(
@@ -222,8 +204,9 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="examples:\n"
         "  skillret-generate play --root data/kitchen_play --episodes 150 --steps-per-episode 2000\n"
         "  skillret-generate demos --root data/demos_cook --task cook --episodes 30\n\n"
-        "output: a LeRobotDataset v3.0 at --root (data/, meta/, videos/ with --cameras) plus meta/kitchen.json\n"
-        "(primitive names for the primitive_index column, per-episode seed, success and initial MuJoCo state).",
+        "output: a LeRobotDataset v3.0 at --root (data/, meta/, videos/ with --cameras) plus meta/primitives.json\n"
+        "(the names of the primitive_index values) and meta/kitchen.json (frames per primitive, per-episode seed,\n"
+        "success and initial MuJoCo state).",
     )
     sub = parser.add_subparsers(dest="kind", required=True)
     common = argparse.ArgumentParser(add_help=False)

@@ -30,7 +30,7 @@ ENV_STATE_NAMES = [f"{obj}_{c}" for obj in layout.MOVABLES for c in ("x", "y", "
 ACTION_NAMES = ["dx", "dy", "dz", "dax", "day", "daz", "gripper"]
 # env observation key -> LeRobot dataset / policy feature key
 ENV_TO_DATASET = {"agent_pos": "observation.state", "environment_state": "observation.environment_state"}
-KITCHEN_META = "meta/kitchen.json"  # per dataset: primitive names, episode seeds, tasks and initial states
+KITCHEN_META = "meta/kitchen.json"  # per dataset: frames per primitive, episode seeds, tasks and initial states
 
 
 def image_key(camera: str) -> str:
@@ -109,7 +109,7 @@ def env_feature_shapes(cameras: tuple[str, ...] = (), image_size: int = DEFAULT_
 
 
 def load_kitchen_meta(root: str | Path) -> dict:
-    """The generator's side file of a dataset root (primitive names, per-episode seeds and initial states, ...)."""
+    """The generator's side file of a dataset root (frames per primitive, per-episode seeds and initial states, ...)."""
     path = Path(root) / KITCHEN_META
     if not path.is_file():
         raise FileNotFoundError(

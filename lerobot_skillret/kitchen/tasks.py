@@ -20,7 +20,13 @@ from importlib.metadata import entry_points
 from lerobot_skillret.kitchen import layout
 from lerobot_skillret.kitchen import predicates as P
 
-DEFAULT_JOINTS = {"drawer_slide": 0.0, "light_switch_joint": -0.025, "burner_switch_joint": -0.025}
+# drawer closed, light and burner off
+DEFAULT_JOINTS = {
+    "drawer_slide": layout.DRAWER_RANGE[0],
+    "light_switch_joint": layout.SWITCH_RANGE[0],
+    "burner_switch_joint": layout.SWITCH_RANGE[0],
+}
+FIXTURE_PLACES = {"stove": 1, "shelf": len(layout.SHELF_SLOTS), "drawer": len(layout.DRAWER_SLOTS)}  # -> capacity
 
 
 @dataclass(frozen=True)
@@ -44,6 +50,35 @@ class Task:
     # whether play episodes start from this task's scene (`play.play_scene_task`); False for a task added after the
     # published play data whose scene another built-in task already has, so that data stays as it was
     play_scene: bool = True
+
+    def __post_init__(self) -> None:
+        """A task of your own (an entry point) fails here, naming what is wrong, not deep inside the sampler."""
+
+        def fail(why: str) -> None:
+            raise ValueError(f"Kitchen task {self.name!r}: {why}.")
+
+        if not self.goals or not self.plan or self.max_steps < 1:
+            fail("needs goals, a plan and max_steps >= 1")
+        unknown = sorted(set(self.init) - set(layout.MOVABLES))
+        if unknown:
+            fail(f"init names unknown objects {unknown}; choose from {list(layout.MOVABLES)}")
+        for name, where in self.init.items():
+            fixture = len(where) == 1 and where[0] in FIXTURE_PLACES
+            if not where or not (fixture or set(where) <= set(layout.REGIONS)):
+                fail(
+                    f"init[{name!r}] = {where!r}: give one of {list(FIXTURE_PLACES)} alone, or table regions "
+                    f"from {list(layout.REGIONS)}"
+                )
+        for place, capacity in FIXTURE_PLACES.items():
+            count = sum(where == (place,) for where in self.init.values())
+            if count > capacity:
+                fail(f"{count} objects start on the {place}, which has room for {capacity}")
+        if set(self.joints) != set(DEFAULT_JOINTS):
+            fail(f"joints must set exactly {list(DEFAULT_JOINTS)}; got {list(self.joints)}")
+        for joint, value in self.joints.items():
+            low, high = sorted(layout.DRAWER_RANGE if joint == "drawer_slide" else layout.SWITCH_RANGE)
+            if not low <= value <= high:
+                fail(f"joints[{joint!r}] = {value} is outside its range [{low}, {high}]")
 
     def success(self, scene: P.SceneState) -> bool:
         return all(goal(scene) for goal in self.goals)

@@ -15,6 +15,7 @@ from typing import Any
 import draccus
 
 from lerobot_skillret.kitchen.generate import DEFAULT_DEMOS, DEFAULT_PLAY_EPISODES, DEFAULT_PLAY_STEPS
+from lerobot_skillret.kitchen.tasks import TASKS
 from lerobot_skillret.pipeline.methods import METHODS
 
 
@@ -27,7 +28,7 @@ class DataSpec:
     demo_episodes: int = DEFAULT_DEMOS  # successful target demonstrations per task
     workers: int = 2  # generator worker processes
     seed: int = 0  # generation seed (datasets are reproducible from it)
-    cameras: bool = False  # also record 84x84 agentview + eye-in-hand images
+    cameras: bool = False  # camera datasets: not supported by the pipeline yet (rejected with the reason)
 
 
 @dataclass
@@ -96,8 +97,6 @@ class PipelineConfig:
                         f"pipeline config: method `{method}` needs a `baselines.{key}` section "
                         "(its lerobot-train options)."
                     )
-        from lerobot_skillret.kitchen.tasks import TASKS  # import-light: task definitions only
-
         unknown_tasks = [t for t in self.tasks if t not in TASKS]
         if unknown_tasks:
             raise ValueError(f"pipeline config: unknown tasks {unknown_tasks}; choose from {sorted(TASKS)}.")

@@ -58,9 +58,3 @@ METHODS: dict[str, Method] = {
         ),
     )
 }
-
-
-def get_method(name: str) -> Method:
-    if name not in METHODS:
-        raise ValueError(f"unknown method {name!r}; choose from {list(METHODS)}.")
-    return METHODS[name]

@@ -4,7 +4,7 @@ Layout of the output folder (every path is an artifact; a stage is skipped when 
 
     data/play, data/demos_<task>                        LeRobotDatasets (skillret-generate)
     skills/prior_seed<s>, skills/target_<task>_seed<s>  stage-1 runs (lerobot-train, stage=skills)
-    retrieval/<task>_<mode>_seed<s>/                    retrieval.safetensors + report/ (skillret-retrieve)
+    retrieval/<task>_<method>_seed<s>/                  retrieval.safetensors + report/ (skillret-retrieve)
     train/<method>/<task>/seed<s>                       stage-2 / baseline runs (lerobot-train)
     eval/<method>/<task>/seed<s>/step<k>                lerobot-eval outputs (eval_info.json, videos/)
     heldout/seed<g>_n<n>/demos_<task>                   held-out demos (generation seed g, n episodes)

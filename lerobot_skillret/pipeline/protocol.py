@@ -8,7 +8,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from lerobot_skillret.files import write_json_atomic
+from lerobot_skillret.files import staged_dir, write_json_atomic
 from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.results import HELDOUT_FILE
 
@@ -84,17 +84,14 @@ def publish_cell(plan: Plan, cell: Cell, summary: dict[str, Any], results_dir: P
     write_json_atomic(plan.cell_path(cell), summary)
     if results_dir is None:
         return
-    dest = plan.published_dir(results_dir, cell)
-    tmp = dest.with_name(dest.name + ".partial")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    for row in summary["checkpoints"]:
-        shutil.copyfile(plan.eval_dir(cell, row["step"]) / "eval_info.json", tmp / f"eval_step{row['step']}.json")
-    retrieval_summary = plan.retrieval_summary(cell)
-    if retrieval_summary is not None:
-        shutil.copyfile(retrieval_summary, tmp / "retrieval_summary.json")
-    if plan.heldout_path(cell).exists():  # scored before this (re-)publication
-        shutil.copyfile(plan.heldout_path(cell), tmp / HELDOUT_FILE)  # bytes unchanged, as `publish_heldout`
-    (tmp / "cell.json").write_text(json.dumps(summary, indent=2, sort_keys=True))
-    shutil.rmtree(dest, ignore_errors=True)
-    tmp.rename(dest)
+    with staged_dir(plan.published_dir(results_dir, cell)) as tmp:  # the folder appears whole or not at all
+        tmp.mkdir()
+        for row in summary["checkpoints"]:
+            eval_info = plan.eval_dir(cell, row["step"]) / "eval_info.json"
+            shutil.copyfile(eval_info, tmp / f"eval_step{row['step']}.json")
+        retrieval_summary = plan.retrieval_summary(cell)
+        if retrieval_summary is not None:
+            shutil.copyfile(retrieval_summary, tmp / "retrieval_summary.json")
+        if plan.heldout_path(cell).exists():  # scored before this (re-)publication
+            shutil.copyfile(plan.heldout_path(cell), tmp / HELDOUT_FILE)  # bytes unchanged, as `publish_heldout`
+        (tmp / "cell.json").write_text(json.dumps(summary, indent=2, sort_keys=True))

@@ -138,12 +138,16 @@ def budget_table(cells: dict[tuple[str, str], list[dict]]) -> str:
 
 
 def markdown_report(cells: dict[tuple[str, str], list[dict]], heldout: dict[tuple[str, str], list[dict]]) -> str:
-    """Both rollout tables, success first (the seed's metric), the training budgets, then the held-out errors where
-    scored."""
+    """Both rollout tables, success first (the seed's metric), the training budgets, the held-out errors where
+    scored, then what each row's method is."""
     sections = [f"### {METRICS[m]}\n\n{markdown_table(cells, m)}" for m in METRICS]
     sections.append(f"### Training budget\n\n{budget_table(cells)}")
     if heldout:
         sections.append(f"### Held-out imitation error (skillret variants)\n\n{heldout_table(heldout)}")
+    methods = _order({m for m, _ in cells} | {m for m, _ in heldout})
+    legend = [f"- `{m}`: {METHODS[m].summary}" for m in methods if m in METHODS]
+    if legend:
+        sections.append("### Methods\n\n" + "\n".join(legend) + "\n")
     return "\n".join(sections)
 
 

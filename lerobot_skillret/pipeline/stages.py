@@ -163,8 +163,9 @@ class StageRunner:
             raise RuntimeError(f"stage {stage.name} failed ({why}). Last lines of {log_path}:\n{tail}")
         if stage.after is not None:
             stage.after(stage.partial)
+        # the command is recorded first: an output never exists without the record `_check_same_command` reads
+        self._record(self.commands_path, stage.name, stage.identity)
         os.replace(stage.partial, stage.output)
         self._record(self.timings_path, stage.name, round(seconds, 1))
-        self._record(self.commands_path, stage.name, stage.identity)
         log.info("[done] %s in %.0f s", stage.name, seconds)
         return True

@@ -36,9 +36,8 @@ class WindowSource:
         horizon: int,
         video_backend: str | None = None,
     ) -> None:
-        self.repo_id, self.root = repo_id, Path(root)
-        self.columns = EpisodeColumns.from_dataset(repo_id, self.root)
-        frames = FrameReader(repo_id, self.root, list(image_keys), video_backend) if image_keys else None
+        self.columns = EpisodeColumns.from_dataset(repo_id, Path(root))
+        frames = FrameReader(repo_id, Path(root), list(image_keys), video_backend) if image_keys else None
         self.seed = window_seed()
         self.sampler = WindowSampler(
             self.columns,

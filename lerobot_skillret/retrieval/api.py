@@ -269,7 +269,9 @@ def select_windows(
     if settings.mode == "random":
         retrieved = torch.randperm(num, generator=generator(settings.seed, STREAM_RANDOM))[:count].clone()
     else:  # nearest, all (count = N), none (count = 0)
-        exact = (lambda rows: engine.exact(prior_mean, log_vars[0], rows)) if settings.exact else None
+        exact = (
+            (lambda rows: engine.exact(prior_mean, log_vars[0], rows, settings.chunk_size)) if settings.exact else None
+        )
         retrieved, values = smallest(scores, count, exact)
         distance[retrieved] = _distance(values, settings.metric)  # float64-settled values near the cut
     retrieved = retrieved[torch.sort(distance[retrieved], stable=True).indices]

@@ -241,7 +241,7 @@ class NearestTarget:
                 raise _non_finite("prior")
         return Scores(value=value, nearest=nearest, margin=margin)
 
-    def exact(self, prior_mean: Tensor, prior_log_var: Tensor | None, rows: Tensor) -> Tensor:
+    def exact(self, prior_mean: Tensor, prior_log_var: Tensor | None, rows: Tensor, chunk_size: int = 256) -> Tensor:
         """float64 values of the given prior rows: settles the rows whose side of the selection cut is uncertain.
 
         Rows are gathered a slice at a time, so even a degenerate case (every row uncertain) stays in bounded
@@ -250,7 +250,7 @@ class NearestTarget:
         for start in range(0, len(rows), _EXACT_SLICE):
             part = rows[start : start + _EXACT_SLICE]
             log_var = None if prior_log_var is None else prior_log_var[part]
-            scores = self.score(prior_mean[part], log_var, chunk_size=256, dtype=torch.float64)
+            scores = self.score(prior_mean[part], log_var, chunk_size=chunk_size, dtype=torch.float64)
             out[start : start + len(part)] = scores.value
         return out
 

@@ -263,7 +263,6 @@ def _histogram_figure(inputs: ReportInputs, summary: dict[str, Any]):
 
 def _primitive_figure(summary: dict[str, Any]):
     import matplotlib.pyplot as plt
-    import numpy as np
 
     rows = summary["primitives"]
     relevant = set(summary.get("precision", {}).get("relevant", []))

@@ -20,6 +20,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
+from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
 from lerobot_skillret.retrieval.kernels import METRICS
 
 MODES = ("nearest", "random", "all", "none")
@@ -54,10 +55,10 @@ class RetrievalSettings:
     chunk_size: int = 256  # prior rows per block: ~chunk_size * M * 4 bytes per worker (256: stays in cache)
 
     def resolve(self, config: Any | None = None) -> RetrievalSettings:
-        """Fill unset values from a SkillRetConfig (or the paper's defaults without one), then validate."""
+        """Fill unset values from a SkillRetConfig (or its defaults, the paper's, without one), then validate."""
 
-        def default(name: str, paper: Any) -> Any:
-            return getattr(config, name, paper) if config is not None else paper
+        def default(name: str) -> Any:
+            return getattr(config if config is not None else SkillRetConfig, name)
 
         values = dataclasses.asdict(self)
         if self.mode == "all":
@@ -68,14 +69,14 @@ class RetrievalSettings:
                 )
             values.update(fraction=1.0, num_prior=EVERY_WINDOW)
         if values["fraction"] is None:
-            values["fraction"] = default("retrieval_fraction", 0.10)
+            values["fraction"] = default("retrieval_fraction")
         if values["metric"] is None:
-            values["metric"] = default("retrieval_metric", "l2")
+            values["metric"] = default("retrieval_metric")
         if values["num_prior"] == FROM_CHECKPOINT:
-            num_prior = default("retrieval_num_prior", 250_000)
+            num_prior = default("retrieval_num_prior")
             values["num_prior"] = EVERY_WINDOW if num_prior is None else num_prior
         if values["num_target"] is None:
-            values["num_target"] = default("retrieval_num_target", 2_500)
+            values["num_target"] = default("retrieval_num_target")
         resolved = RetrievalSettings(**values)
         resolved.validate()
         return resolved
