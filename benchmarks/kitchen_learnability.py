@@ -375,7 +375,11 @@ def main() -> None:
     parser.add_argument("--data-dir", type=Path, default=ROOT / "outputs" / "learnability")
     parser.add_argument("--results", type=Path, help=f"default: {RESULTS} for mlp, its bc_rnn/ for rnn")
     parser.add_argument("--force", action="store_true", help="redo tasks that already have a result")
-    parser.add_argument("--table", action="store_true", help="print the table of stored results and exit")
+    parser.add_argument(
+        "--table",
+        action="store_true",
+        help="no training: rebuild the table and plots from the stored results and exit",
+    )
     args = parser.parse_args()
     args.batch_size = args.batch_size or DEFAULT_BATCH[args.reference]
     args.results = args.results or (RESULTS if args.reference == "mlp" else RESULTS / "bc_rnn")
@@ -391,6 +395,8 @@ def main() -> None:
                 continue
             write_json_atomic(out, run_task(task, args))
         write_text_atomic(args.results / "results.md", table(args.results))
+    if not any(args.results.glob("*.json")):
+        parser.error(f"no stored results in {args.results}: run without --table first (or pass --results)")
     print(table(args.results))
     print(f"loss curves: {plot_curves(args.results)}")
     if args.results.resolve() in (RESULTS, RESULTS / "bc_rnn"):  # the published results: both references in one plot

@@ -1,7 +1,7 @@
 """CPU cost of LeRobot's baseline policies (ACT, Diffusion) as the pipeline configures them: train ms/step, select_action ms/step.
 
     python benchmarks/pipeline_baselines_speed.py --root <dataset root> --repo-id <repo id> \
-        [--config configs/pipeline/demo.yaml] [--batch-size 64] [--eval-batch 10]
+        [--config configs/pipeline/benchmark.yaml] [--batch-size 64] [--eval-batch 10]
 
 Each variant is built the way `lerobot-train` builds it (policy config from the same `policy.<opt>` options as the
 pipeline's `baselines:` section, `make_policy` on the dataset's metadata, LeRobot's processors, its optimizer preset)
@@ -121,6 +121,10 @@ def main() -> None:
     args = parser.parse_args()
     torch.manual_seed(0)
     variants = variants_from_config(args.config) if args.config else DEFAULT_VARIANTS
+    if not variants:
+        parser.error(
+            f"{args.config} has no `baselines:` section: nothing to time (configs/pipeline/benchmark.yaml has one)"
+        )
     for name, kind, options in variants:
         if args.only and name not in args.only:
             continue

@@ -42,7 +42,6 @@ CONFIG = ROOT / "configs" / "policy" / "cpu.json"
 PLAY_STEPS = 1000  # steps per play episode
 BATCH_SIZE = json.loads(CONFIG.read_text())["batch_size"]  # stage 1's, as the config trains it
 HELDOUT_SEED = 1  # demos seeds 1 * 1_000_003 + i: no training dataset here uses them (training demos use seed 0)
-LEVELS = {1: "1 step", 2: "2 steps", 3: "3+ steps"}
 
 
 def run(cmd: list[str], log: Path) -> None:
@@ -231,7 +230,9 @@ def main() -> None:
     parser.add_argument("--save-every", type=int, default=3000, help="checkpoint period (default 3000)")
     parser.add_argument("--episodes", type=int, default=10, help="held-out demos per task (default 10)")
     parser.add_argument("--work", type=Path, default=ROOT / "outputs" / "skill_study", help="data and runs")
-    parser.add_argument("--table", action="store_true", help="only print the table of stored results")
+    parser.add_argument(
+        "--table", action="store_true", help="no training: rebuild results.md and skills.png from the stored results"
+    )
     args = parser.parse_args()
     if args.table:
         table()

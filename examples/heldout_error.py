@@ -3,9 +3,9 @@ checkpoints (methods, ablations, seeds) without the noise of a few rollouts.
 
 Generate held-out demonstrations with another generation seed than the training ones, then score checkpoints:
 
-    skillret-generate demos --task breakfast --episodes 10 --seed 7 --root outputs/heldout/demos_breakfast
-    python examples/heldout_error.py --demos outputs/heldout/demos_breakfast \\
-        --checkpoints outputs/benchmark/train/*/breakfast/seed0/checkpoints/last/pretrained_model
+    skillret-generate demos --task bread_and_butter --episodes 10 --seed 7 --root outputs/heldout/demos_bread_and_butter
+    python examples/heldout_error.py --demos outputs/heldout/demos_bread_and_butter \\
+        --checkpoints outputs/benchmark/train/{skillret,no_retrieval,no_prior}/bread_and_butter/seed0/checkpoints/last/pretrained_model
 
 Printed per checkpoint: the mean action error of the policy's skills and of the oracle skills (see
 `lerobot_skillret.pipeline.heldout`). For a pipeline's own cells, `skillret-pipeline heldout --config <config>` does

@@ -6,8 +6,8 @@ success here and low success of the trained policy points at the latent policy; 
 skill model. `benchmarks/skill_study.py` runs it over stage-1 training steps, prior sizes and the task ladder.
 
     MUJOCO_GL=egl python examples/oracle_skills.py \\
-        --checkpoint outputs/demo/train/skillret/breakfast/seed0/checkpoints/last/pretrained_model \\
-        --demos outputs/demo/data/demos_breakfast --task breakfast --episodes 5
+        --checkpoint outputs/demo/train/skillret/open_drawer/seed0/checkpoints/last/pretrained_model \\
+        --demos outputs/demo/data/demos_open_drawer --task open_drawer --episodes 5
 """
 
 import argparse
@@ -22,7 +22,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoint", required=True, type=Path, help="a skillret `pretrained_model` folder")
     parser.add_argument("--demos", required=True, type=Path, help="a demos dataset made by `skillret-generate demos`")
-    parser.add_argument("--task", required=True, help="the demos' task (e.g. breakfast)")
+    parser.add_argument("--task", required=True, help="the demos' task (e.g. open_drawer)")
     parser.add_argument("--episodes", type=int, default=5, help="demonstrations to try (default 5)")
     parser.add_argument("--slack", type=float, default=1.5, help="rollout length / demo length (default 1.5)")
     parser.add_argument(

@@ -3,8 +3,8 @@
 Picks the episode with the most subtask progress by default (from the eval folder's eval_info.json), so a failed
 evaluation still shows how far the policy got.
 
-    python examples/rollout_strip.py outputs/benchmark/eval/skillret/breakfast/seed0/step1000 \\
-        --output examples/images/rollout_skillret_breakfast.png --frames 8
+    python examples/rollout_strip.py outputs/demo/eval/skillret/open_drawer/seed0/step2000 \\
+        --output outputs/demo/rollout_strip.png --frames 8
 """
 
 from __future__ import annotations

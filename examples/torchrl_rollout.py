@@ -5,8 +5,8 @@ processors, `select_action`), so the actions equal lerobot-eval's (`tests/test_p
 `torchrl.envs.GymEnv("gym_panda_kitchen/<task>")`, so the rollout is a TensorDict ready for TorchRL tooling.
 
     MUJOCO_GL=egl python examples/torchrl_rollout.py \\
-        --checkpoint outputs/demo/train/skillret/breakfast/seed0/checkpoints/last/pretrained_model \\
-        --task breakfast --episodes 3
+        --checkpoint outputs/demo/train/skillret/open_drawer/seed0/checkpoints/last/pretrained_model \\
+        --task open_drawer --episodes 3
 """
 
 import argparse
@@ -26,13 +26,14 @@ EVAL_SEED0 = 100_000  # held-out initial states, as the pipeline's lerobot-eval 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--checkpoint", required=True, type=Path, help="a `pretrained_model` folder")
-    parser.add_argument("--task", required=True, help="kitchen task (e.g. breakfast)")
+    parser.add_argument("--task", required=True, help="kitchen task (e.g. open_drawer)")
     parser.add_argument("--episodes", type=int, default=3, help="rollouts (default 3)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     max_steps = get_task(args.task).max_steps
     env = GymEnv(f"gym_panda_kitchen/{args.task}")
-    actor = LeRobotActor.from_pretrained(args.checkpoint, args.task, OBS_KEYS)
+    # the policy sees the task's description, as lerobot-eval gives it (language-conditioned policies read it)
+    actor = LeRobotActor.from_pretrained(args.checkpoint, get_task(args.task).description, OBS_KEYS)
     successes = 0
     for episode in range(args.episodes):
         env.set_seed(EVAL_SEED0 + episode)

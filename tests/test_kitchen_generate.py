@@ -39,17 +39,16 @@ def _jobs(n: int) -> list[EpisodeJob]:
     return [EpisodeJob("demos", seed, task="breakfast") for seed in range(n)]
 
 
+@pytest.mark.timeout(60)
 def test_early_stop_with_jobs_still_queued_finishes_in_seconds():
     """More workers than needed and 90 queued attempts of which 1 is used: leaving the stream must kill the pool
     at once. The `Pool.imap` this replaces blocked forever in `Pool.terminate()` (a worker writing its episode into
     the shared result queue, whose reader had stopped)."""
-    start = time.monotonic()
     with G._episode_stream(_jobs(90), workers=4, simulate=_fake_episode) as stream:
         first = next(iter(stream))
         workers = _workers()
         assert len(workers) == 4
     assert first.seed == 0
-    assert time.monotonic() - start < 60
     _, alive = psutil.wait_procs(workers, timeout=10)
     assert not alive, f"workers outlived the stream: {alive}"
 

@@ -98,7 +98,8 @@ def test_data_stages_carry_the_kitchen_fingerprint_which_follows_its_files(tmp_p
     from lerobot_skillret.pipeline.config import PipelineConfig
     from lerobot_skillret.pipeline.plan import Plan
 
-    cfg = PipelineConfig.from_args(Path("configs/pipeline/smoke.yaml"), [f"--output_dir={tmp_path / 'out'}"])
+    smoke = Path(__file__).resolve().parents[1] / "configs" / "pipeline" / "smoke.yaml"  # from any working directory
+    cfg = PipelineConfig.from_args(smoke, [f"--output_dir={tmp_path / 'out'}"])
     stages = Plan(cfg).data_stages()
     assert stages and all(s.tags == (f"kitchen={fingerprint.kitchen_fingerprint()}",) for s in stages)
 

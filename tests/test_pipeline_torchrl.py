@@ -47,8 +47,9 @@ def dataset_root(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def kitchen_env():
-    torchrl_envs = pytest.importorskip("torchrl.envs")
-    env = torchrl_envs.GymEnv(f"gym_panda_kitchen/{TASK}")
+    from torchrl.envs import GymEnv  # a pinned dependency: a broken install fails here, it is not skipped
+
+    env = GymEnv(f"gym_panda_kitchen/{TASK}")
     yield env
     env.close()
 

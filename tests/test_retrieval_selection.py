@@ -98,5 +98,8 @@ def test_settings_defaults_come_from_the_checkpoint_config():
 def test_bad_settings_have_clear_errors(kwargs, match):
     with pytest.raises(ValueError, match=match):
         RetrievalSettings(**kwargs).resolve()
+
+
+def test_unknown_ablation_is_named():
     with pytest.raises(ValueError, match="Unknown retrieval ablation"):
         ablation("best")

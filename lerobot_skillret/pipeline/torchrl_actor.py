@@ -21,7 +21,9 @@ from tensordict.nn import TensorDictModuleBase
 
 
 class LeRobotActor(TensorDictModuleBase):
-    """Reads the env's observation keys from a tensordict and writes `action` (unbatched or batched envs)."""
+    """Reads the env's observation keys from a tensordict and writes `action` (unbatched or batched envs).
+
+    `task` is the task's description (`get_task(name).description`), the string lerobot-eval hands a policy."""
 
     def __init__(self, policy: torch.nn.Module, preprocessor, postprocessor, task: str, obs_keys: list[str]) -> None:
         super().__init__()
