@@ -132,8 +132,7 @@ def generate(args: argparse.Namespace) -> Path:
     if root.exists() and not args.overwrite:
         raise FileExistsError(f"{root} already exists; pass --overwrite or choose another --root")
     features = O.dataset_features(tuple(args.cameras), O.DEFAULT_IMAGE_SIZE)
-    steps = getattr(args, "steps_per_episode", 0)  # play only
-    jobs = episode_jobs(args.kind, args.seed, args.episodes, args.task, steps, tuple(args.cameras))
+    jobs = episode_jobs(args.kind, args.seed, args.episodes, args.task, args.steps_per_episode, tuple(args.cameras))
     episodes_meta, attempts, failures, primitive_frames = [], 0, 0, Counter()
     with staged_dir(root) as tmp:  # an interrupted run leaves no dataset behind
         dataset = LeRobotDataset.create(
@@ -242,6 +241,8 @@ def build_parser() -> argparse.ArgumentParser:
     demos.add_argument(
         "--episodes", type=int, default=DEFAULT_DEMOS, help="successful demos to keep (failed attempts are dropped)"
     )
+    play.set_defaults(task=None)  # both kinds carry every field `generate` reads
+    demos.set_defaults(steps_per_episode=0)
     return parser
 
 
@@ -251,8 +252,6 @@ def main(argv: list[str] | None = None) -> None:
         sys.exit("--episodes must be >= 1 and --workers >= 0")
     if args.kind == "play" and args.steps_per_episode < 1:
         sys.exit("--steps-per-episode must be >= 1")
-    if args.kind == "play":
-        args.task = None
     if args.repo_id is None:
         args.repo_id = f"local/kitchen_{args.kind}" + (f"_{args.task}" if args.task else "")
     # SIGTERM (a pipeline cancelling this stage, `kill`) unwinds like Ctrl-C: the temporary folder is removed.
