@@ -111,16 +111,39 @@ def test_data_stages_carry_the_kitchen_fingerprint_which_follows_its_files(tmp_p
     assert fingerprint.kitchen_fingerprint(copy) != before
 
 
-def test_training_stages_follow_the_contents_of_their_config_file(tmp_path: Path) -> None:
+def test_training_stages_follow_the_contents_of_their_config_file_not_its_folder(tmp_path: Path) -> None:
     """The command names `--config_path`, not what the file says: editing the file changes the stage's identity, so
-    the runner refuses the old checkpoint instead of reusing it."""
+    the runner refuses the old checkpoint instead of reusing it; the same file in another checkout is accepted."""
     config = tmp_path / "cpu.json"
     config.write_text('{"policy": {"kl_weight": 1e-05}}')
     cfg = PipelineConfig(output_dir=str(tmp_path / "out"), skills=TrainSpec(config_path=str(config)))
     before = Plan(cfg).skills_stage(0).identity
     config.write_text('{"policy": {"kl_weight": 1e-03}}')
-    after = Plan(cfg).skills_stage(0).identity
-    assert before != after and before[:-1] == after[:-1]  # the same command line, another config tag
+    after = Plan(cfg).skills_stage(0)
+    assert before != after.identity and before[:-1] == after.identity[:-1]  # the same command line, another tag
+    assert not after.same_build(before)
+
+    clone = tmp_path / "clone" / "cpu.json"  # the same file in another checkout: the same build
+    clone.parent.mkdir()
+    clone.write_text(config.read_text())
+    moved = Plan(PipelineConfig(output_dir=cfg.output_dir, skills=TrainSpec(config_path=str(clone)))).skills_stage(0)
+    assert moved.identity != after.identity and moved.same_build(after.identity)
+
+
+def test_a_stage_built_from_another_checkout_of_the_same_config_file_is_reused(tmp_path: Path) -> None:
+    """Moving the repository (or a second clone) must not force hours of stages to be rebuilt, nor hide an edit."""
+    first, second = tmp_path / "a" / "cpu.json", tmp_path / "b" / "cpu.json"
+
+    def stage(config: Path, tag: str) -> Stage:
+        built = writer_stage(tmp_path, "skills")
+        built.command.append(f"--config_path={config}")
+        built.tags = (f"config_sha256={tag}",)
+        return built
+
+    assert StageRunner(tmp_path / "out").run(stage(first, "0123")) is True
+    assert StageRunner(tmp_path / "out").run(stage(second, "0123")) is False  # reused
+    with pytest.raises(RuntimeError, match=r"other options or inputs.*config_sha256=4567"):
+        StageRunner(tmp_path / "out").run(stage(second, "4567"))
 
 
 def test_two_runners_sharing_a_folder_build_a_stage_once(tmp_path: Path) -> None:

@@ -43,12 +43,26 @@ class Stage:
     def identity(self) -> list[str]:
         return [*self.command, *self.tags]
 
+    def same_build(self, recorded: list[str]) -> bool:
+        """Whether `recorded` (an identity from commands.json) builds what this stage would.
+
+        A `--config_path` is compared by file name only: its contents are in the tags, so the same file read from
+        another checkout (a moved or second clone of the repository) is still the same build.
+        """
+        return _located(recorded) == _located(self.identity)
+
     @property
     def partial(self) -> Path:
         return self.output.with_name(self.output.name + ".partial")
 
     def done(self) -> bool:
         return self.output.exists()
+
+
+def _located(identity: list[str]) -> list[str]:
+    """`identity` with each `--config_path=<dir>/<name>` reduced to its name."""
+    flag = "--config_path="
+    return [flag + Path(t.removeprefix(flag)).name if t.startswith(flag) else t for t in identity]
 
 
 def _remove(path: Path) -> None:
@@ -112,7 +126,7 @@ class StageRunner:
         """An artifact built by another command (the config changed since), or from other inputs than its command
         names (its tags: e.g. the kitchen's files changed since), must not be reused silently."""
         built = json.loads(self.commands_path.read_text()).get(stage.name) if self.commands_path.exists() else None
-        if built is not None and built != stage.identity:
+        if built is not None and not stage.same_build(built):
             changed = sorted(set(stage.identity) ^ set(built))
             raise RuntimeError(
                 f"stage {stage.name}: {stage.output} was built with other options or inputs than this run has "
