@@ -55,3 +55,11 @@ def test_baseline_trains_with_pipeline_options(tmp_path: Path, method: str) -> N
     for option, value in spec.args.items():
         if option.startswith("policy."):
             assert saved[option.removeprefix("policy.")] == value, option
+
+
+def test_act_fine_tuned_gets_the_budget_of_act() -> None:
+    """act_ft differs from act only by its initialisation (ACT pre-trained on the prior): the same steps, batch and
+    evaluated checkpoints on the target demos, or the comparison measures the budget instead."""
+    act, act_ft = baseline_spec("act"), baseline_spec("act_ft")
+    budget = ("steps", "batch_size", "save_freq")
+    assert [getattr(act_ft, f) for f in budget] == [getattr(act, f) for f in budget]
