@@ -60,7 +60,8 @@ def summarise_cell(
     ]
     if not rows:
         raise RuntimeError(f"no evaluated checkpoint for {cell}; did training save any (save_freq)?")
-    best = max(rows, key=lambda r: (r["success"], r["subgoals"], r["step"]))
+    # rounded: equal scores summed in another order differ in the last bits, and must still tie
+    best = max(rows, key=lambda r: (round(r["success"], 9), round(r["subgoals"], 9), r["step"]))
     return {
         "method": cell.method,
         "task": cell.task,

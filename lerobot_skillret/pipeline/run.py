@@ -39,25 +39,39 @@ def prerequisites(plan: Plan, cell: Cell) -> list[Stage]:
     return []
 
 
+def training_stages(plan: Plan, cell: Cell) -> list[Stage]:
+    """What `cell` trains, in order: shared prerequisites, its own skills and retrieval if any, its policy."""
+    stages = prerequisites(plan, cell)
+    method = METHODS[cell.method]
+    if method.skills == "target":
+        stages.append(plan.skills_stage(cell.seed, cell.task))
+    if method.retrieval is not None:
+        stages.append(plan.retrieval_stage(cell.task, cell.method, cell.seed))
+    return [*stages, plan.train_stage(cell)]
+
+
+def evaluation_stages(plan: Plan, cell: Cell) -> list[Stage]:
+    """One `lerobot-eval` per saved checkpoint that the protocol evaluates (none before training has saved any)."""
+    return [plan.eval_stage(cell, step, checkpoint) for step, checkpoint in plan.checkpoints(cell)]
+
+
 def run_cell(plan: Plan, runner: StageRunner, cell: Cell, results_dir: Path | None) -> dict:
-    if plan.cell_path(cell).exists():
+    training = training_stages(plan, cell)
+    if plan.cell_path(cell).exists() and all(stage.done() for stage in training):
+        # a summary stands for the stages it came from: after a config change they are refused, not re-reported
+        for stage in [*training, *evaluation_stages(plan, cell)]:
+            runner.check_built(stage)
         log.info("[skip] cell %s/%s/seed%d (summary exists)", cell.method, cell.task, cell.seed)
         summary = json.loads(plan.cell_path(cell).read_text())
         if results_dir is not None and not plan.published_dir(results_dir, cell).exists():
             publish_cell(plan, cell, summary, results_dir)  # results_dir was added after the cell finished
         return summary
-    for stage in prerequisites(plan, cell):
+    for stage in training:
         runner.run(stage)  # skipped when built already; waits on its lock while another job builds it
-    method = METHODS[cell.method]
-    if method.skills == "target":
-        runner.run(plan.skills_stage(cell.seed, cell.task))
-    if method.retrieval is not None:
-        runner.run(plan.retrieval_stage(cell.task, cell.method, cell.seed))
-    train = plan.train_stage(cell)
-    runner.run(train)
+    train = training[-1]
     start = time.monotonic()
-    for step, checkpoint in plan.checkpoints(cell):
-        runner.run(plan.eval_stage(cell, step, checkpoint))
+    for stage in evaluation_stages(plan, cell):
+        runner.run(stage)
     curve = read_loss_curve(runner.log_path(train))
     summary = summarise_cell(plan, cell, runner.timing(train.name), time.monotonic() - start, curve)
     publish_cell(plan, cell, summary, results_dir)

@@ -122,7 +122,7 @@ class StageRunner:
             entries[name] = value
             write_json_atomic(path, entries)
 
-    def _check_same_command(self, stage: Stage) -> None:
+    def check_built(self, stage: Stage) -> None:
         """An artifact built by another command (the config changed since), or from other inputs than its command
         names (its tags: e.g. the kitchen's files changed since), must not be reused silently."""
         built = json.loads(self.commands_path.read_text()).get(stage.name) if self.commands_path.exists() else None
@@ -154,7 +154,7 @@ class StageRunner:
         if self.cancel.is_set():
             raise Cancelled(f"stage {stage.name} not started: another job of this run failed or was interrupted")
         if stage.done():
-            self._check_same_command(stage)
+            self.check_built(stage)
             log.info("[skip] %s (exists: %s)", stage.name, stage.output)
             return False
         _remove(stage.partial)
@@ -177,7 +177,7 @@ class StageRunner:
             raise RuntimeError(f"stage {stage.name} failed ({why}). Last lines of {log_path}:\n{tail}")
         if stage.after is not None:
             stage.after(stage.partial)
-        # the command is recorded first: an output never exists without the record `_check_same_command` reads
+        # the command is recorded first: an output never exists without the record `check_built` reads
         self._record(self.commands_path, stage.name, stage.identity)
         os.replace(stage.partial, stage.output)
         self._record(self.timings_path, stage.name, round(seconds, 1))
