@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -498,14 +499,24 @@ def test_a_failed_shared_stage_stops_the_run_and_is_never_retried(
     assert counter.read_text() == "x" and started == [] and not shared.output.exists()
 
 
-def test_a_finished_cell_is_reported_only_while_its_stages_match_the_config(tmp_path: Path) -> None:
+def test_a_finished_cell_is_reported_only_while_its_stages_match_the_config(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """A cell's summary stands for the commands that trained and evaluated it: after the config changes (another
-    budget), the run must refuse it and name what to delete instead of reporting the old numbers as the new ones."""
+    budget), the run must refuse it and name what to delete instead of reporting the old numbers as the new ones;
+    once that is deleted, the cell rebuilds it and is summarised again."""
     from lerobot_skillret.pipeline.run import evaluation_stages, run_cell, training_stages
 
-    def plan_with(steps: int) -> Plan:
+    def plan_with(steps: int, episodes: int = 50) -> Plan:
         act = TrainSpec(steps=steps, batch_size=32, save_freq=2000)
-        return Plan(PipelineConfig(output_dir=str(tmp_path / "out"), tasks=["cook"], baselines={"act": act}))
+        return Plan(
+            PipelineConfig(
+                output_dir=str(tmp_path / "out"),
+                tasks=["cook"],
+                baselines={"act": act},
+                eval=EvalSpec(n_episodes=episodes, batch_size=10),
+            )
+        )
 
     plan, cell = plan_with(4000), Cell("act", "cook", 0)
     runner = StageRunner(plan.root)
@@ -523,3 +534,18 @@ def test_a_finished_cell_is_reported_only_while_its_stages_match_the_config(tmp_
     assert run_cell(plan, runner, cell, None) == summary  # the same config: reported, nothing re-run
     with pytest.raises(RuntimeError, match=r"train/act/cook/seed0.*other options.*--steps="):
         run_cell(plan_with(8000), runner, cell, None)
+    with pytest.raises(RuntimeError, match=r"eval/act/cook/seed0/step2000.*other options.*n_episodes=100"):
+        run_cell(plan_with(4000, episodes=100), runner, cell, None)
+
+    shutil.rmtree(plan.eval_dir(cell, 2000))  # what the refusal says to do
+    ran: list[str] = []
+
+    def evaluate(stage: Stage) -> bool:  # stands in for lerobot-eval
+        ran.append(stage.name)
+        info.parent.mkdir(parents=True, exist_ok=True)
+        info.write_text(json.dumps({"overall": {"pc_success": 60.0, "avg_max_reward": 0.7, "n_episodes": 100}}))
+        return True
+
+    monkeypatch.setattr(runner, "run", lambda stage: stage.done() is False and evaluate(stage))
+    again = run_cell(plan_with(4000, episodes=100), runner, cell, None)
+    assert ran == ["eval/act/cook/seed0/step2000"] and again["success"] == 0.6

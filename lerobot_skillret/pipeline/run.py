@@ -57,9 +57,11 @@ def evaluation_stages(plan: Plan, cell: Cell) -> list[Stage]:
 
 def run_cell(plan: Plan, runner: StageRunner, cell: Cell, results_dir: Path | None) -> dict:
     training = training_stages(plan, cell)
-    if plan.cell_path(cell).exists() and all(stage.done() for stage in training):
-        # a summary stands for the stages it came from: after a config change they are refused, not re-reported
-        for stage in [*training, *evaluation_stages(plan, cell)]:
+    built = [*training, *evaluation_stages(plan, cell)]
+    if plan.cell_path(cell).exists() and all(stage.done() for stage in built):
+        # a summary stands for the stages it came from: after a config change they are refused, not re-reported;
+        # one deleted (the fix the refusal names) is rebuilt below and the cell summarised again
+        for stage in built:
             runner.check_built(stage)
         log.info("[skip] cell %s/%s/seed%d (summary exists)", cell.method, cell.task, cell.seed)
         summary = json.loads(plan.cell_path(cell).read_text())
