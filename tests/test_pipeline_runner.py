@@ -289,6 +289,8 @@ def test_plan_wires_each_ablation(tmp_path: Path) -> None:
     all_cmd = plan.retrieval_stage("cook", "all_retrieval", 0).command
     assert "--ablation=all" in all_cmd and not any(a.startswith(("--fraction", "--num-prior")) for a in all_cmd)
     assert "--fraction=0.05" in plan.retrieval_stage("cook", "skillret", 0).command
+    half = plan.retrieval_stage("cook", "retrieval_50", 0).command  # the method's own r overrides the config's
+    assert "--fraction=0.5" in half and "--fraction=0.05" not in half
     exact = Plan(
         PipelineConfig(output_dir=str(tmp_path), tasks=["cook"], retrieval=RetrievalSpec(args={"exact": False}))
     )

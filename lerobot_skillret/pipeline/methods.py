@@ -43,6 +43,13 @@ METHODS: dict[str, Method] = {
         Method("no_retrieval", "skills from the prior, no retrieved windows", "prior"),
         Method("all_retrieval", "skills from the prior, every prior window retrieved", "prior", {"ablation": "all"}),
         Method("random_retrieval", "skills from the prior, r random prior windows", "prior", {"ablation": "random"}),
+        # A.4's "50 % Retrieval": the nearest half of the prior, between skillret's 10 % and all of it
+        Method(
+            "retrieval_50",
+            "skills from the prior, the closest 50 % of prior windows retrieved",
+            "prior",
+            {"fraction": 0.5},
+        ),
         Method("no_prior", "skills and policy from the target demos only", "target"),
         # LeRobot's own policies (seed C.4), trained by lerobot-train
         Method("act", "LeRobot ACT on the target demos", lerobot_type="act", baselines=("act",)),
