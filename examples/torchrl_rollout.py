@@ -16,11 +16,11 @@ import torch
 from torchrl.envs import GymEnv
 
 import lerobot_skillret  # noqa: F401  (registers the gym ids)
+from lerobot_skillret.kitchen.seeds import EVAL_SEED0  # held-out initial states, as lerobot-eval's in the pipeline
 from lerobot_skillret.kitchen.tasks import get_task
 from lerobot_skillret.pipeline.torchrl_actor import LeRobotActor
 
 OBS_KEYS = ["agent_pos", "environment_state"]
-EVAL_SEED0 = 100_000  # held-out initial states, as the pipeline's lerobot-eval runs use
 
 
 def main() -> None:

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from lerobot_skillret.kitchen.fingerprint import kitchen_fingerprint
+from lerobot_skillret.kitchen.seeds import EVAL_SEED0
 from lerobot_skillret.pipeline.config import PipelineConfig, TrainSpec
 from lerobot_skillret.pipeline.methods import METHODS
 from lerobot_skillret.pipeline.stages import Stage
@@ -278,7 +279,7 @@ class Plan:
             "eval.n_episodes": e.n_episodes,
             "eval.batch_size": e.batch_size,
             "eval.use_async_envs": False,
-            "seed": 100_000 + cell.seed,
+            "seed": EVAL_SEED0 + cell.seed,
             "output_dir": stage.partial,
             **e.args,
         }
