@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from synthetic import make_synthetic_dataset
 
-from lerobot_skillret.pipeline.config import PipelineConfig, TrainSpec
+from lerobot_skillret.pipeline.config import BaselineSpecs, PipelineConfig, TrainSpec
 from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.stages import StageRunner
 
@@ -34,7 +34,10 @@ def baseline_spec(method: str) -> TrainSpec:
 def test_baseline_trains_with_pipeline_options(tmp_path: Path, method: str) -> None:
     spec = dataclasses.replace(baseline_spec(method), steps=2, save_freq=2)
     cfg = PipelineConfig(
-        output_dir=str(tmp_path / "run"), tasks=["breakfast"], methods=[method], baselines={method: spec}
+        output_dir=str(tmp_path / "run"),
+        tasks=["breakfast"],
+        methods=[method],
+        baselines=BaselineSpecs(**{method: spec}),
     )
     plan = Plan(cfg)
     cell = Cell(method, "breakfast", 0)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from lerobot_skillret.pipeline.config import EvalSpec, PipelineConfig, RetrievalSpec, TrainSpec
+from lerobot_skillret.pipeline.config import BaselineSpecs, EvalSpec, PipelineConfig, RetrievalSpec, TrainSpec
 from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.protocol import read_loss_curve, summarise_cell
 from lerobot_skillret.pipeline.results import (
@@ -234,6 +234,24 @@ def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
         PipelineConfig.from_args(path)
 
 
+def test_config_overrides_a_baseline_from_the_command_line(tmp_path: Path) -> None:
+    """`--baselines.act.steps=...` works as for any other key (a dict of sections refused it), the YAML's other
+    options of that section are kept, and an unknown section is named."""
+    path = tmp_path / "p.yaml"
+    path.write_text(
+        "methods: [act]\nbaselines:\n  act: {steps: 4000, save_freq: 2000, args: {policy.dim_model: 128}}\n"
+    )
+    cfg = PipelineConfig.from_args(path, ["--baselines.act.steps=16000", "--baselines.act.save_freq=8000"])
+    act = cfg.baselines["act"]
+    assert (act.steps, act.save_freq, act.args) == (16000, 8000, {"policy.dim_model": 128})
+    assert "diffusion" not in cfg.baselines and [name for name, _ in cfg.baselines.items()] == ["act"]
+    with pytest.raises(KeyError, match=r"no `baselines\.diffusion` section"):
+        cfg.baselines["diffusion"]
+    path.write_text("baselines:\n  dit: {steps: 3}\n")
+    with pytest.raises(ValueError, match="`dit` are not valid"):
+        PipelineConfig.from_args(path)
+
+
 @pytest.mark.parametrize(
     ("override", "message"),
     [
@@ -388,7 +406,7 @@ def test_heldout_scores_trained_cells_once_and_publishes_only_its_own(
         tasks=["cook"],
         methods=methods,
         seeds=[0, 1],
-        baselines={"act": TrainSpec()},
+        baselines=BaselineSpecs(act=TrainSpec()),
         eval=EvalSpec(max_checkpoints=2),
     )
     plan, results = Plan(cfg), tmp_path / "results"
@@ -515,7 +533,7 @@ def test_a_finished_cell_is_reported_only_while_its_stages_match_the_config(
             PipelineConfig(
                 output_dir=str(tmp_path / "out"),
                 tasks=["cook"],
-                baselines={"act": act},
+                baselines=BaselineSpecs(act=act),
                 eval=EvalSpec(n_episodes=episodes, batch_size=10),
             )
         )

@@ -8,7 +8,7 @@ stock `lerobot-train` run; its options are written exactly as on the command lin
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +41,34 @@ class TrainSpec:
     save_freq: int = 500  # checkpoints evaluated by the protocol are every `save_freq` steps and the last one
     num_workers: int = 0  # dataloader workers (0 keeps 2-core machines responsive)
     args: dict[str, Any] = field(default_factory=dict)  # e.g. {"policy.encoder_lstm_hidden": 256}
+
+
+@dataclass
+class BaselineSpecs:
+    """LeRobot's own policies as the seed's baselines (C.4): one `lerobot-train` spec per section, absent (None) when
+    no method of the config needs it. Named fields rather than a dict, so that draccus takes command-line overrides
+    such as `--baselines.act.steps=16000` as for any other key."""
+
+    act: TrainSpec | None = None  # ACT on the target demos
+    diffusion: TrainSpec | None = None  # Diffusion Policy on the target demos
+    act_ft_prior: TrainSpec | None = None  # ACT pre-trained on the play data, once per seed (shared by the tasks)
+    act_ft: TrainSpec | None = None  # that ACT fine-tuned on the target demos
+
+    def __getitem__(self, name: str) -> TrainSpec:
+        if name not in self:
+            raise KeyError(f"pipeline config has no `baselines.{name}` section (its lerobot-train options).")
+        return getattr(self, name)
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.names() and getattr(self, name) is not None
+
+    @classmethod
+    def names(cls) -> list[str]:
+        return [f.name for f in fields(cls)]
+
+    def items(self) -> list[tuple[str, TrainSpec]]:
+        """The sections the config gives, by name."""
+        return [(name, getattr(self, name)) for name in self.names() if name in self]
 
 
 @dataclass
@@ -82,7 +110,7 @@ class PipelineConfig:
     skills: TrainSpec = field(default_factory=TrainSpec)  # stage 1 (shared by tasks; one per seed)
     policy: TrainSpec = field(default_factory=TrainSpec)  # stage 2 (one per method, task and seed)
     retrieval: RetrievalSpec = field(default_factory=RetrievalSpec)
-    baselines: dict[str, TrainSpec] = field(default_factory=dict)  # act, diffusion, act_ft_prior, act_ft
+    baselines: BaselineSpecs = field(default_factory=BaselineSpecs)
     eval: EvalSpec = field(default_factory=EvalSpec)
     heldout: HeldoutSpec = field(default_factory=HeldoutSpec)
 
