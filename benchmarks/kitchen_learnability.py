@@ -407,10 +407,11 @@ def main() -> None:
                     continue
                 print(f"{task}: redone: its result was rolled out from env seeds {first_seed}+, not the calibration's")
             write_json_atomic(out, run_task(task, args))
-        write_text_atomic(args.results / "results.md", table(args.results))
     if not any(args.results.glob("*.json")):
         parser.error(f"no stored results in {args.results}: run without --table first (or pass --results)")
-    print(table(args.results))
+    markdown = table(args.results)
+    write_text_atomic(args.results / "results.md", markdown)
+    print(markdown)
     print(f"loss curves: {plot_curves(args.results)}")
     if args.results.resolve() in (RESULTS, RESULTS / "bc_rnn"):  # the published results: both references in one plot
         folders, ladder = {LABELS["mlp"]: RESULTS, LABELS["rnn"]: RESULTS / "bc_rnn"}, RESULTS / "ladder.png"

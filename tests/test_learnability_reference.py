@@ -4,6 +4,10 @@ the network it trained (same hidden state, same horizon), and the windows must s
 from __future__ import annotations
 
 import importlib.util
+import os
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -50,3 +54,18 @@ def test_mlp_actor_runs_the_first_actions_of_each_chunk():
         online = np.stack([act(o) for o in obs])
         planned = [model(obs[i][None])[0, : kl.EXECUTE].numpy() for i in (0, kl.EXECUTE)]
     np.testing.assert_allclose(online, np.concatenate(planned), atol=1e-6)
+
+
+def test_table_rebuilds_the_stored_results_markdown(tmp_path: Path):
+    """`--table` (no training) rewrites results.md from the stored task results, as its help says."""
+    published = SCRIPT.parent / "results" / "learnability" / "bc_rnn" / "light_on.json"
+    shutil.copy(published, tmp_path / "light_on.json")
+    (tmp_path / "results.md").write_text("stale\n")
+    subprocess.run(
+        [sys.executable, str(SCRIPT), "--reference", "rnn", "--table", "--results", str(tmp_path)],
+        check=True,
+        capture_output=True,
+        env={**os.environ, "MPLBACKEND": "Agg"},
+    )
+    markdown = (tmp_path / "results.md").read_text()
+    assert "| light_on |" in markdown and "stale" not in markdown
