@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from lerobot_skillret.pipeline.config import BaselineSpecs, EvalSpec, PipelineConfig, RetrievalSpec, TrainSpec
+from lerobot_skillret.pipeline.methods import METHODS
 from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.protocol import read_loss_curve, summarise_cell
 from lerobot_skillret.pipeline.results import (
@@ -250,6 +251,13 @@ def test_config_overrides_a_baseline_from_the_command_line(tmp_path: Path) -> No
     path.write_text("baselines:\n  dit: {steps: 3}\n")
     with pytest.raises(ValueError, match="`dit` are not valid"):
         PipelineConfig.from_args(path)
+
+
+def test_every_baseline_a_method_needs_is_a_config_section() -> None:
+    """The method registry and the config's named sections list the same baselines: a name only one of them knows
+    would ask for a section the config file cannot give."""
+    needed = {key for method in METHODS.values() for key in method.baselines}
+    assert needed == set(BaselineSpecs.names())
 
 
 @pytest.mark.parametrize(
