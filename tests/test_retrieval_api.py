@@ -229,3 +229,21 @@ def test_a_kill_during_the_report_leaves_neither_report_nor_file(setup, tmp_path
     assert output.is_file() and (report / "summary.json").is_file()
     leftovers = [p.name for p in tmp_path.rglob("*") if p.name.startswith(".") or p.stat().st_size == 0]
     assert leftovers == []
+
+
+def test_a_report_folder_holding_other_files_is_refused_and_left_intact(setup, tmp_path, capsys):
+    """The report replaces its folder whole: pointing --report-dir at a folder of other files (the retrieval
+    file's own, say) must stop before anything is written, and an earlier report may be replaced."""
+    keep = tmp_path / "other.safetensors"
+    keep.write_bytes(b"not mine")
+    output = tmp_path / "ret.safetensors"
+    with pytest.raises(SystemExit) as stop:
+        main(cli_args(setup, output, "--report-dir", str(tmp_path)))
+    assert stop.value.code == 2
+    assert "already holds other files" in capsys.readouterr().err
+    assert keep.read_bytes() == b"not mine" and not output.exists()
+
+    report = tmp_path / "report"
+    assert main(cli_args(setup, output, "--report-dir", str(report))) == 0
+    assert main(cli_args(setup, output, "--report-dir", str(report))) == 0  # an earlier report is replaced
+    assert (report / "summary.json").is_file() and keep.read_bytes() == b"not mine"

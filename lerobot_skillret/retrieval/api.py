@@ -76,6 +76,8 @@ def retrieve(
     """
     from lerobot_skillret.data.windows import EpisodeColumns
 
+    if report_dir is not None:
+        _check_report_dir(Path(report_dir))
     pretrained = resolve_checkpoint(checkpoint)
     policy = load_skill_model(pretrained, device)
     settings = (settings or RetrievalSettings()).resolve(policy.config)
@@ -293,6 +295,18 @@ def retrieval_count(fraction: float, num_candidates: int) -> int:
 def _distance(value: Tensor, metric: str) -> Tensor:
     """Reported distance: the L2 norm (kernels work with its square), or the symmetric KL itself."""
     return value.clamp(min=0.0).sqrt() if metric == "l2" else value.clamp(min=0.0)
+
+
+def _check_report_dir(report_dir: Path) -> None:
+    """The report replaces its folder whole, so that folder must be new, empty, or an earlier report (it holds a
+    summary.json): anything else would be deleted with it."""
+    if report_dir.is_dir() and any(report_dir.iterdir()) and not (report_dir / "summary.json").is_file():
+        raise ValueError(
+            f"report folder {report_dir} already holds other files, which writing the report would replace: "
+            "pass a new or empty folder (e.g. <output>_report)"
+        )
+    if report_dir.exists() and not report_dir.is_dir():
+        raise ValueError(f"report folder {report_dir} is a file: pass a folder path")
 
 
 def _finish(
