@@ -98,3 +98,20 @@ def test_sigterm_removes_the_temporary_folder(tmp_path):
     proc.terminate()
     assert proc.wait(timeout=60) != 0
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_expert_that_keeps_failing_is_a_clear_error_and_leaves_no_dataset(tmp_path, monkeypatch, capsys):
+    """A task whose scripted expert never succeeds (a user's new task with a bad plan) stops with the reason, not
+    a traceback, after its 3x attempts; nothing is left at --root."""
+
+    def failed(job: EpisodeJob) -> Episode:
+        return Episode(seed=job.seed, task="breakfast", success=False, initial_state=np.zeros(3), frames={})
+
+    monkeypatch.setattr(G, "run_episode", failed)
+    root = tmp_path / "demos"
+    args = ["demos", "--task", "breakfast", "--episodes", "2", "--workers", "0", "--root", str(root)]
+    with pytest.raises(SystemExit) as stop:
+        G.main(args)
+    assert "only 0 of 2 successful demos in 6 attempts" in str(stop.value.code)
+    assert str(stop.value.code).startswith("skillret-generate: ")
+    assert not root.exists() and list(tmp_path.iterdir()) == []

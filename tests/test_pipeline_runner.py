@@ -577,3 +577,31 @@ def test_a_finished_cell_is_reported_only_while_its_stages_match_the_config(
     monkeypatch.setattr(runner, "run", lambda stage: stage.done() is False and evaluate(stage))
     again = run_cell(plan_with(4000, episodes=100), runner, cell, None)
     assert ran == ["eval/act/cook/seed0/step2000"] and again["success"] == 0.6
+
+
+def _pipeline_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(Path(sys.executable).parent / "skillret-pipeline"), *args], capture_output=True, text=True
+    )
+
+
+def test_a_yaml_syntax_error_is_named_without_a_traceback(tmp_path: Path) -> None:
+    config = tmp_path / "broken.yaml"
+    config.write_text("tasks: [cook, breakfast\nseeds: [0]\n")
+    result = _pipeline_cli("run", "--config", str(config), f"--output_dir={tmp_path / 'never'}")
+    assert result.returncode == 2
+    assert f"{config}: while parsing a flow sequence" in result.stderr and "line 1" in result.stderr
+    assert "Traceback" not in result.stderr and not (tmp_path / "never").exists()
+
+
+def test_table_refuses_a_folder_without_published_cells_and_keeps_its_report(tmp_path: Path) -> None:
+    """A run's output_dir keeps cells as cells/<m>/<t>/seed<s>.json, not the results folder's cell.json: `table`
+    on it used to replace its results.md with an empty table."""
+    (tmp_path / "cells" / "skillret" / "cook").mkdir(parents=True)
+    (tmp_path / "cells" / "skillret" / "cook" / "seed0.json").write_text('{"method": "skillret", "task": "cook"}')
+    (tmp_path / "results.md").write_text("the run's table")
+    result = _pipeline_cli("table", "--results", str(tmp_path))
+    assert result.returncode == 2
+    assert "output_dir" in result.stderr and "nothing written" in result.stderr
+    assert (tmp_path / "results.md").read_text() == "the run's table"
+    assert not (tmp_path / "results.png").exists()

@@ -258,8 +258,8 @@ def main(argv: list[str] | None = None) -> None:
     signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(128 + signum))
     try:
         generate(args)
-    except FileExistsError as e:
-        sys.exit(str(e))
+    except (FileExistsError, RuntimeError) as e:  # RuntimeError: the expert failed, or a worker crashed
+        sys.exit(f"skillret-generate: {e}")
 
 
 if __name__ == "__main__":

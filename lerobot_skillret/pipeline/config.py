@@ -183,5 +183,8 @@ class PipelineConfig:
             return draccus.parse(cls, config_path=path, args=list(args))
         except draccus.utils.DecodingError as err:
             raise ValueError(f"{path}: {err}. Correct it in the config file or the command-line override.") from None
-        except draccus.utils.ParsingError as err:  # wraps what __post_init__ refused
-            raise (err.__cause__ or err) from None
+        except draccus.utils.ParsingError as err:  # wraps what __post_init__ refused, or a YAML syntax error
+            cause = err.__cause__
+            if isinstance(cause, (ValueError, FileNotFoundError)):
+                raise cause from None
+            raise ValueError(f"{path}: {cause or err}") from None

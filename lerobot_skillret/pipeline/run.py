@@ -225,7 +225,19 @@ def main(argv: list[str] | None = None) -> None:
     else:
         if not args.results.is_dir():
             parser.exit(2, f"skillret-pipeline: {args.results} does not exist: no finished cells yet.\n")
-        print(write_report(collect(args.results), args.results, collect(args.results, PUBLISHED_HELDOUT)))
+        cells = collect(args.results)
+        if not cells:  # an empty table would replace the folder's results.md and plots
+            hint = (
+                "it is a run's output_dir, whose results.md every `skillret-pipeline run` rewrites; "
+                if collect(args.results, Plan.CELL_SUMMARIES)
+                else ""
+            )
+            parser.exit(
+                2,
+                f"skillret-pipeline: no <method>/<task>/seed<s>/cell.json under {args.results} ({hint}pass a "
+                "results_dir, e.g. benchmarks/results/benchmark); nothing written.\n",
+            )
+        print(write_report(cells, args.results, collect(args.results, PUBLISHED_HELDOUT)))
 
 
 if __name__ == "__main__":
