@@ -14,6 +14,7 @@ from collections import Counter
 
 import numpy as np
 
+from lerobot_skillret.kitchen.collect import episode_jobs
 from lerobot_skillret.kitchen.tasks import TASKS
 
 _SCENE = {}
@@ -52,9 +53,9 @@ def main() -> None:
     parser.add_argument("--tasks", nargs="*", default=sorted(TASKS), choices=sorted(TASKS))
     args = parser.parse_args()
     # Round-robin over tasks, results streamed as they finish: an interrupted run still reports every task.
-    jobs = [
-        (t, args.seed * 1_000_003 + i, i % args.replay_every == 0) for i in range(args.attempts) for t in args.tasks
-    ]
+    # the generator's own episode seeds for --seed (one per attempt), so these are the states datasets start from
+    seeds = [job.seed for job in episode_jobs("play", args.seed, args.attempts)]
+    jobs = [(t, seed, i % args.replay_every == 0) for i, seed in enumerate(seeds) for t in args.tasks]
     results = []
     with mp.get_context("spawn").Pool(args.workers) as pool:
         try:

@@ -16,14 +16,15 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
-from pathlib import Path
 from typing import Any
 
 import torch
-import yaml
 from lerobot.datasets.factory import resolve_delta_timestamps
 from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
 from lerobot.policies.factory import make_policy, make_policy_config, make_pre_post_processors
+
+from lerobot_skillret.pipeline.config import PipelineConfig
+from lerobot_skillret.pipeline.methods import METHODS
 
 # (name, policy type, options) used when no --config is given; a config's `baselines:` section replaces them.
 DEFAULT_VARIANTS: list[tuple[str, str, dict[str, Any]]] = [
@@ -43,14 +44,12 @@ def policy_kwargs(args: dict[str, Any]) -> dict[str, Any]:
 
 
 def variants_from_config(path: str) -> list[tuple[str, str, dict[str, Any]]]:
-    baselines = (yaml.safe_load(Path(path).read_text()) or {}).get("baselines") or {}
+    """The config's baseline sections, each with the LeRobot policy type of the method that uses it."""
+    cfg = PipelineConfig.from_args(path)
+    kinds = {section: m.lerobot_type for m in METHODS.values() if m.lerobot_type for section in m.baselines}
     return [
-        (
-            name,
-            "diffusion" if name.startswith("diffusion") else "act",
-            {**spec["args"], "batch_size": spec["batch_size"]},
-        )
-        for name, spec in baselines.items()
+        (name, kinds[name], {**spec.args, "batch_size": spec.batch_size})
+        for name, spec in cfg.baselines.items()
         if name != "act_ft"  # the same network as act_ft_prior
     ]
 

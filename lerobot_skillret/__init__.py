@@ -10,11 +10,8 @@ Pipeline, in reading order: kitchen (data generation) -> data (windows) -> polic
 
 from importlib.metadata import version
 
-from lerobot_skillret.kitchen.env_config import PandaKitchenEnv
-from lerobot_skillret.kitchen.registration import register_envs
+from lerobot_skillret.kitchen.env_config import PandaKitchenEnv  # registers the gym ids too
 from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
-
-register_envs()
 
 __all__ = ["PandaKitchenEnv", "SkillRetConfig"]
 __version__ = version("lerobot_policy_skillret")

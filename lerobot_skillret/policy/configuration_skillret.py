@@ -53,7 +53,7 @@ class SkillRetConfig(PreTrainedConfig):
     encoder_lstm_hidden: int = 1000  # skill encoder: LSTM hidden units
     encoder_mlp: tuple[int, ...] = (1024, 1024)  # skill encoder: MLP hidden sizes -> (mean, log-variance)
     decoder_lstm_hidden: int = 1000  # closed-loop skill decoder: LSTM hidden units, input (z, o_t) each step
-    decoder_mlp: tuple[int, ...] = (1024, 1024)  # skill decoder: MLP hidden sizes -> tanh action
+    decoder_mlp: tuple[int, ...] = (1024, 1024)  # skill decoder: MLP hidden sizes -> action (tanh if MIN_MAX)
     prior_mlp: tuple[int, ...] = (1024, 1024)  # learned prior (see skill_prior_inputs): hidden sizes
     skill_prior_inputs: str = "endpoints"  # what the learned prior sees: "endpoints" o_0 and o_{H-1} (the paper's
     # code), or "first" o_0 only (SPiRL's state-conditioned prior: with a larger kl_weight the skill keeps only what

@@ -23,6 +23,8 @@ from pathlib import Path
 
 from lerobot_skillret.retrieval.settings import ABLATIONS, EVERY_WINDOW, METRICS, MODES, RetrievalSettings, ablation
 
+DEFAULTS = RetrievalSettings()  # execution defaults shown in --help
+
 
 def _num_prior(text: str) -> int | str:
     if text == EVERY_WINDOW:
@@ -85,9 +87,11 @@ def build_parser() -> argparse.ArgumentParser:
         action=argparse.BooleanOptionalAction,
         help="settle windows near the cut in float64, so the set equals a float64 brute force (default true)",
     )
-    run.add_argument("--batch-size", type=int, help="windows per encoder forward pass (default 512)")
+    run.add_argument("--batch-size", type=int, help=f"windows per encoder forward pass (default {DEFAULTS.batch_size})")
     run.add_argument(
-        "--chunk-size", type=int, help="prior rows per distance block (default 256: its [256, M] block stays in cache)"
+        "--chunk-size",
+        type=int,
+        help=f"prior rows per distance block (default {DEFAULTS.chunk_size}: its [rows, M] block stays in cache)",
     )
     run.add_argument("--device", help="torch device for the encoder (default: the checkpoint's, if available)")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
