@@ -68,6 +68,10 @@ def _worker(conn: Connection, simulate: Callable[[EpisodeJob], Episode]) -> None
             conn.send((position, None, traceback.format_exc()))
 
 
+class GenerationError(RuntimeError):
+    """Generation cannot finish (the expert keeps failing, a worker crashed): reported as one line by the CLI."""
+
+
 @contextmanager
 def _episode_stream(
     jobs: list[EpisodeJob], workers: int, simulate: Callable[[EpisodeJob], Episode] | None = None
@@ -116,9 +120,9 @@ def _ordered(jobs: list[EpisodeJob], conns: list[Connection]) -> Iterator[Episod
                 try:
                     position, episode, error = conn.recv()
                 except EOFError:
-                    raise RuntimeError("a simulation worker died (killed, or crashed in MuJoCo)") from None
+                    raise GenerationError("a simulation worker died (killed, or crashed in MuJoCo)") from None
                 if error is not None:
-                    raise RuntimeError(f"simulating episode {position} failed in a worker:\n{error}")
+                    raise GenerationError(f"simulating episode {position} failed in a worker:\n{error}")
                 done[position] = episode
                 idle.append(conn)
         yield done.pop(due)
@@ -170,7 +174,7 @@ def generate(args: argparse.Namespace) -> Path:
             bar.close()
         dataset.finalize()
         if len(episodes_meta) < args.episodes:
-            raise RuntimeError(
+            raise GenerationError(
                 f"only {len(episodes_meta)} of {args.episodes} successful demos in {attempts} attempts; "
                 "the scripted expert is failing, check the task"
             )
@@ -258,7 +262,7 @@ def main(argv: list[str] | None = None) -> None:
     signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(128 + signum))
     try:
         generate(args)
-    except (FileExistsError, RuntimeError) as e:  # RuntimeError: the expert failed, or a worker crashed
+    except (FileExistsError, GenerationError) as e:
         sys.exit(f"skillret-generate: {e}")
 
 
