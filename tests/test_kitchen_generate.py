@@ -102,7 +102,7 @@ def test_sigterm_removes_the_temporary_folder(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_an_expert_that_keeps_failing_is_a_clear_error_and_leaves_no_dataset(tmp_path, monkeypatch, capsys):
+def test_an_expert_that_keeps_failing_is_a_clear_error_and_leaves_no_dataset(tmp_path, monkeypatch):
     """A task whose scripted expert never succeeds (a user's new task with a bad plan) stops with the reason, not
     a traceback, after its 3x attempts; nothing is left at --root."""
 

@@ -300,13 +300,13 @@ def _distance(value: Tensor, metric: str) -> Tensor:
 def _check_report_dir(report_dir: Path) -> None:
     """The report replaces its folder whole, so that folder must be new, empty, or an earlier report (it holds a
     summary.json): anything else would be deleted with it."""
+    if report_dir.exists() and not report_dir.is_dir():
+        raise ValueError(f"report folder {report_dir} is a file: pass a folder path")
     if report_dir.is_dir() and any(report_dir.iterdir()) and not (report_dir / "summary.json").is_file():
         raise ValueError(
             f"report folder {report_dir} already holds other files, which writing the report would replace: "
             "pass a new or empty folder (e.g. <output>_report)"
         )
-    if report_dir.exists() and not report_dir.is_dir():
-        raise ValueError(f"report folder {report_dir} is a file: pass a folder path")
 
 
 def _finish(
