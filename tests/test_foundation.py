@@ -83,6 +83,7 @@ def test_defaults_are_the_papers() -> None:
         ("policy_lr", 0.0),
         ("stage", "pretrain"),
         ("retrieval_metric", "cosine"),
+        ("vision_backbone", "vit_b_16"),
         ("encoder_mlp", (1024, 0)),
         ("retrieval_num_prior", 0),
     ],

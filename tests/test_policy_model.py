@@ -22,11 +22,13 @@ from synthetic import make_synthetic_dataset
 
 from lerobot_skillret.data.fingerprint import checkpoint_fingerprint
 from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
+from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
 from lerobot_skillret.policy.latent_policy import RETRIEVED_ID, TARGET_ID
 from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
 from lerobot_skillret.policy.networks import ObservationEncoder, center_crop, random_crop
 from lerobot_skillret.policy.normalization import SkillNormalizer
 from lerobot_skillret.policy.processor_skillret import make_skillret_pre_post_processors
+from lerobot_skillret.policy.skills import make_observation_encoder
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -613,7 +615,7 @@ def test_rollout_decoder_step_matches_the_training_decoder(prior_root):
 def test_observation_encoder_cameras_crop_and_learn():
     """ResNet-18 + spatial softmax per camera, concatenated after the low-dim MLP; random crop in training,
     centre crop at inference; gradients reach the backbone."""
-    encoder = ObservationEncoder({"observation.state": (6,)}, {"cam": (3, 64, 64)}, (16,), (56, 56), 8)
+    encoder = ObservationEncoder({"observation.state": (6,)}, {"cam": (3, 64, 64)}, (16,), (56, 56), 8, "resnet18")
     assert encoder.out_dim == 16 + 2 * 8
     observation = {"observation.state": torch.randn(2, 3, 6), "cam": torch.rand(2, 3, 3, 64, 64)}
     out = encoder(observation)
@@ -629,6 +631,15 @@ def test_observation_encoder_cameras_crop_and_learn():
         top, left = divmod(int(crop[0, 0, 0] - image[0, 0, 0]), 10)
         assert torch.equal(crop, image[:, top : top + 4, left : left + 4])
     assert torch.equal(center_crop(images, (4, 4)), images[..., 3:7, 3:7])
+
+
+def test_configured_vision_backbone_is_the_one_built():
+    """`vision_backbone` picks the torchvision ResNet each camera trains (ResNet-50's bottleneck trunk ends in 2048
+    channels, ResNet-18's in 512)."""
+    shapes = ({"observation.state": (6,)}, {"cam": (3, 64, 64)})
+    for backbone, channels in (("resnet18", 512), ("resnet50", 2048)):
+        encoder = make_observation_encoder(SkillRetConfig(device="cpu", vision_backbone=backbone), *shapes)
+        assert encoder.cameras[0].trunk.eval()(torch.rand(1, 3, 64, 64)).shape[1] == channels
 
 
 def test_implementation_only_extras_add_their_terms(prior_root):

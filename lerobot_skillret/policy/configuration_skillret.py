@@ -18,6 +18,7 @@ RETRIEVAL_METRICS = ("l2", "kl")
 RETRIEVED_LATENTS = ("stored", "reencode")
 SKILL_PRIOR_INPUTS = ("endpoints", "first")
 POLICY_SUPERVISION = ("last", "every_step")
+RESNETS = ("resnet18", "resnet34", "resnet50", "resnet101", "resnet152")  # torchvision's, each with a 64-channel stem
 SKILL_NORMALIZATION_MODES = (NormalizationMode.IDENTITY, NormalizationMode.MEAN_STD, NormalizationMode.MIN_MAX)
 
 
@@ -43,7 +44,7 @@ class SkillRetConfig(PreTrainedConfig):
 
     # --- Observation encoder (shared shape by the skill encoder/decoder/prior and the policy).
     low_dim_mlp: tuple[int, ...] = (256,)  # MLP over the concatenated low-dim observations (state, env state)
-    vision_backbone: str = "resnet18"  # per-camera backbone, trained from scratch as in the seed's C.1
+    vision_backbone: str = "resnet18"  # per-camera torchvision ResNet, trained from scratch; resnet18 is the seed's C.1
     crop_shape: tuple[int, int] | None = (76, 76)  # random crop during training, centre crop at inference
     spatial_softmax_keypoints: int = 32  # keypoints of the spatial-softmax pooling after each backbone
 
@@ -169,8 +170,8 @@ class SkillRetConfig(PreTrainedConfig):
         for kind, mode in self.skill_normalization_mapping.items():
             if NormalizationMode(mode) not in SKILL_NORMALIZATION_MODES:
                 fail("skill_normalization_mapping", {kind: mode}, f"supported modes: {SKILL_NORMALIZATION_MODES}")
-        if self.vision_backbone != "resnet18":
-            fail("vision_backbone", self.vision_backbone, "only resnet18 (the seed's C.1 backbone) is implemented")
+        if self.vision_backbone not in RESNETS:
+            fail("vision_backbone", self.vision_backbone, f"choose one of torchvision's ResNets {RESNETS}")
         if self.retrieval_metric not in RETRIEVAL_METRICS:
             fail("retrieval_metric", self.retrieval_metric, f"choose one of {RETRIEVAL_METRICS}")
         for name in (

@@ -1,8 +1,8 @@
 """Building blocks shared by every skillret module: MLPs, the observation encoder (LeRobot's spatial softmax).
 
 The seed (C.1) gives each of the four observation-taking modules (skill encoder, decoder, prior, policy) its own
-observation encoder: an MLP for the low-dimensional inputs and, per camera, a ResNet-18 trained from scratch whose
-feature map is pooled to keypoints by a spatial softmax, with random-crop augmentation during training.
+observation encoder: an MLP for the low-dimensional inputs and, per camera, a ResNet (18 in the seed) trained from
+scratch whose feature map is pooled to keypoints by a spatial softmax, with random-crop augmentation during training.
 """
 
 from __future__ import annotations
@@ -55,13 +55,19 @@ def center_crop(images: Tensor, size: tuple[int, int]) -> Tensor:
 
 
 class CameraEncoder(nn.Module):
-    """One camera: crop -> ResNet-18 trunk (no ImageNet weights, as in the seed) -> spatial softmax keypoints."""
+    """One camera: crop -> ResNet trunk (no ImageNet weights, as in the seed) -> spatial softmax keypoints."""
 
-    def __init__(self, image_shape: Sequence[int], crop_shape: tuple[int, int] | None, num_keypoints: int) -> None:
+    def __init__(
+        self,
+        image_shape: Sequence[int],
+        crop_shape: tuple[int, int] | None,
+        num_keypoints: int,
+        backbone: str,
+    ) -> None:
         super().__init__()
         channels, height, width = image_shape
         self.crop_shape = tuple(crop_shape) if crop_shape is not None else None
-        resnet = torchvision.models.resnet18(weights=None)
+        resnet = getattr(torchvision.models, backbone)(weights=None)  # a name from configuration's RESNETS
         if channels != 3:
             resnet.conv1 = nn.Conv2d(channels, 64, kernel_size=7, stride=2, padding=3, bias=False)
         self.trunk = nn.Sequential(*list(resnet.children())[:-2])  # drop average pooling and the classifier
@@ -101,13 +107,16 @@ class ObservationEncoder(nn.Module):
         low_dim_mlp: Sequence[int],
         crop_shape: tuple[int, int] | None,
         num_keypoints: int,
+        backbone: str,
     ) -> None:
         super().__init__()
         self.low_dim_keys = list(low_dim_shapes)
         self.image_keys = list(image_shapes)
         low_dim = sum(int(shape[0]) for shape in low_dim_shapes.values())
         self.low_dim_net = mlp(low_dim, low_dim_mlp) if self.low_dim_keys else None
-        self.cameras = nn.ModuleList(CameraEncoder(shape, crop_shape, num_keypoints) for shape in image_shapes.values())
+        self.cameras = nn.ModuleList(
+            CameraEncoder(shape, crop_shape, num_keypoints, backbone) for shape in image_shapes.values()
+        )
         self.out_dim = (mlp_out_dim(low_dim, low_dim_mlp) if self.low_dim_keys else 0) + sum(
             camera.out_dim for camera in self.cameras
         )

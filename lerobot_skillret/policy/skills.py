@@ -44,7 +44,12 @@ def make_observation_encoder(
     config: SkillRetConfig, low_dim_shapes: Mapping[str, Sequence[int]], image_shapes: Mapping[str, Sequence[int]]
 ) -> ObservationEncoder:
     return ObservationEncoder(
-        low_dim_shapes, image_shapes, config.low_dim_mlp, config.crop_shape, config.spatial_softmax_keypoints
+        low_dim_shapes,
+        image_shapes,
+        config.low_dim_mlp,
+        config.crop_shape,
+        config.spatial_softmax_keypoints,
+        config.vision_backbone,
     )
 
 
