@@ -67,6 +67,15 @@ def staged_dir(final: str | Path) -> Iterator[Path]:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+def check_replaceable_dir(path: Path, marker: str, hint: str) -> None:
+    """`staged_dir` replaces its folder whole, so that folder must be new, empty, or an earlier output of the same
+    kind (it holds `marker`): anything else would be deleted with it. `hint` says what to pass instead."""
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{path} is a file, not a folder: {hint}")
+    if path.is_dir() and any(path.iterdir()) and not (path / marker).is_file():
+        raise ValueError(f"{path} already holds other files, which writing there would delete: {hint}")
+
+
 def _alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)

@@ -117,3 +117,25 @@ def test_an_expert_that_keeps_failing_is_a_clear_error_and_leaves_no_dataset(tmp
     assert "only 0 of 2 successful demos in 6 attempts" in str(stop.value.code)
     assert str(stop.value.code).startswith("skillret-generate: ")
     assert not root.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_overwrite_replaces_only_a_dataset_never_another_folder_or_a_file(tmp_path):
+    """`--overwrite` replaces its --root whole: a folder of other files (or a file) is refused before any
+    simulation, and left as it was."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep me")
+    a_file = tmp_path / "a_file"
+    a_file.write_text("keep me too")
+    for root, reason in ((mine, "already holds other files"), (a_file, "is a file")):
+        args = ["play", "--episodes", "1", "--steps-per-episode", "5", "--workers", "0", "--overwrite"]
+        with pytest.raises(SystemExit) as stop:
+            G.main([*args, "--root", str(root)])
+        assert reason in str(stop.value.code) and "--root" in str(stop.value.code)
+    assert (mine / "notes.txt").read_text() == "keep me" and a_file.read_text() == "keep me too"
+
+
+def test_negative_seed_is_refused_in_one_line():
+    with pytest.raises(SystemExit) as stop:
+        G.main(["play", "--root", "unused", "--seed", "-1"])
+    assert "--seed >= 0" in str(stop.value.code)

@@ -27,7 +27,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from lerobot_skillret.data.labels import write_label_names
-from lerobot_skillret.files import staged_dir
+from lerobot_skillret.files import check_replaceable_dir, staged_dir
 from lerobot_skillret.kitchen import observations as O
 from lerobot_skillret.kitchen.collect import PLAY_TASK_TEXT, Episode, EpisodeJob, episode_jobs, run_episode
 from lerobot_skillret.kitchen.layout import CONTROL_FREQ
@@ -37,6 +37,7 @@ from lerobot_skillret.kitchen.tasks import TASKS
 DEFAULT_PLAY_EPISODES = 150
 DEFAULT_PLAY_STEPS = 2000
 DEFAULT_DEMOS = 30
+DEFAULT_WORKERS = 2
 PREFETCH = 2  # jobs started per worker ahead of the next episode due: keeps workers busy, bounds waste
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
@@ -135,6 +136,7 @@ def generate(args: argparse.Namespace) -> Path:
     root = Path(args.root).expanduser().resolve()
     if root.exists() and not args.overwrite:
         raise FileExistsError(f"{root} already exists; pass --overwrite or choose another --root")
+    check_replaceable_dir(root, "meta/info.json", "choose a new --root (--overwrite only replaces a dataset)")
     features = O.dataset_features(tuple(args.cameras), O.DEFAULT_IMAGE_SIZE)
     jobs = episode_jobs(args.kind, args.seed, args.episodes, args.task, args.steps_per_episode, tuple(args.cameras))
     episodes_meta, attempts, failures, primitive_frames = [], 0, 0, Counter()
@@ -217,7 +219,10 @@ def build_parser() -> argparse.ArgumentParser:
     common.add_argument("--repo-id", default=None, help="dataset repo id stored in the metadata (never pushed)")
     common.add_argument("--seed", type=int, default=0, help="base seed; episode i uses a seed derived from it")
     common.add_argument(
-        "--workers", type=int, default=2, help="simulation worker processes (0: simulate in this process)"
+        "--workers",
+        type=int,
+        default=DEFAULT_WORKERS,
+        help="simulation worker processes (0: simulate in this process)",
     )
     common.add_argument(
         "--cameras",
@@ -226,7 +231,9 @@ def build_parser() -> argparse.ArgumentParser:
         choices=O.CAMERAS,
         help="84x84 cameras to record as videos (none: state-only data)",
     )
-    common.add_argument("--overwrite", action="store_true", help="replace an existing dataset at --root")
+    common.add_argument(
+        "--overwrite", action="store_true", help="replace an existing dataset at --root (never another folder)"
+    )
     play = sub.add_parser(
         "play",
         parents=[common],
@@ -252,8 +259,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> None:
     args = build_parser().parse_args(argv)
-    if args.episodes < 1 or args.workers < 0:
-        sys.exit("--episodes must be >= 1 and --workers >= 0")
+    if args.episodes < 1 or args.workers < 0 or args.seed < 0:
+        sys.exit("skillret-generate: --episodes must be >= 1, --workers >= 0 and --seed >= 0")
     if args.kind == "play" and args.steps_per_episode < 1:
         sys.exit("--steps-per-episode must be >= 1")
     if args.repo_id is None:
@@ -262,7 +269,7 @@ def main(argv: list[str] | None = None) -> None:
     signal.signal(signal.SIGTERM, lambda signum, frame: sys.exit(128 + signum))
     try:
         generate(args)
-    except (FileExistsError, GenerationError) as e:
+    except (FileExistsError, ValueError, GenerationError) as e:
         sys.exit(f"skillret-generate: {e}")
 
 

@@ -14,7 +14,12 @@ from typing import Any
 
 import draccus
 
-from lerobot_skillret.kitchen.generate import DEFAULT_DEMOS, DEFAULT_PLAY_EPISODES, DEFAULT_PLAY_STEPS
+from lerobot_skillret.kitchen.generate import (
+    DEFAULT_DEMOS,
+    DEFAULT_PLAY_EPISODES,
+    DEFAULT_PLAY_STEPS,
+    DEFAULT_WORKERS,
+)
 from lerobot_skillret.kitchen.tasks import TASKS
 from lerobot_skillret.pipeline.methods import METHODS
 
@@ -26,7 +31,7 @@ class DataSpec:
     play_episodes: int = DEFAULT_PLAY_EPISODES  # prior play trajectories (the seed's real-kitchen prior: 150 x ~2,000)
     play_steps: int = DEFAULT_PLAY_STEPS  # steps per play trajectory
     demo_episodes: int = DEFAULT_DEMOS  # successful target demonstrations per task
-    workers: int = 2  # generator worker processes
+    workers: int = DEFAULT_WORKERS  # generator worker processes
     seed: int = 0  # generation seed (datasets are reproducible from it)
     cameras: bool = False  # camera datasets: not supported by the pipeline yet (rejected with the reason)
 

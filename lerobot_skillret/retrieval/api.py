@@ -26,7 +26,7 @@ from tqdm.auto import tqdm
 from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
 from lerobot_skillret.data.labels import PRIMITIVE_KEY, load_label_names
 from lerobot_skillret.data.retrieval_file import RetrievalResult
-from lerobot_skillret.files import staged_dir
+from lerobot_skillret.files import check_replaceable_dir, staged_dir
 from lerobot_skillret.retrieval.kernels import NearestTarget, Selection, smallest
 from lerobot_skillret.retrieval.report import ReportInputs, label_names, relevant_labels, write_report
 from lerobot_skillret.retrieval.settings import EVERY_WINDOW, RetrievalSettings
@@ -77,7 +77,7 @@ def retrieve(
     from lerobot_skillret.data.windows import EpisodeColumns
 
     if report_dir is not None:
-        _check_report_dir(Path(report_dir))
+        check_replaceable_dir(Path(report_dir), "summary.json", "pass a new or empty folder (e.g. <output>_report)")
     pretrained = resolve_checkpoint(checkpoint)
     policy = load_skill_model(pretrained, device)
     settings = (settings or RetrievalSettings()).resolve(policy.config)
@@ -295,18 +295,6 @@ def retrieval_count(fraction: float, num_candidates: int) -> int:
 def _distance(value: Tensor, metric: str) -> Tensor:
     """Reported distance: the L2 norm (kernels work with its square), or the symmetric KL itself."""
     return value.clamp(min=0.0).sqrt() if metric == "l2" else value.clamp(min=0.0)
-
-
-def _check_report_dir(report_dir: Path) -> None:
-    """The report replaces its folder whole, so that folder must be new, empty, or an earlier report (it holds a
-    summary.json): anything else would be deleted with it."""
-    if report_dir.exists() and not report_dir.is_dir():
-        raise ValueError(f"report folder {report_dir} is a file: pass a folder path")
-    if report_dir.is_dir() and any(report_dir.iterdir()) and not (report_dir / "summary.json").is_file():
-        raise ValueError(
-            f"report folder {report_dir} already holds other files, which writing the report would replace: "
-            "pass a new or empty folder (e.g. <output>_report)"
-        )
 
 
 def _finish(
