@@ -80,6 +80,19 @@ def test_episodes_shorter_than_the_window_are_padded_with_a_warning(tmp_path, ca
     assert "shorter than the window" not in caplog.text
 
 
+def test_nan_in_the_dataset_statistics_names_the_feature(prior_root):
+    """A NaN in a dataset reaches its meta/stats.json: the policy is refused when built from it, naming the
+    feature (not later as "no normalisation statistics")."""
+    meta = LeRobotDatasetMetadata(PRIOR_REPO, root=prior_root)
+    config = tiny_config()
+    policy = build_policy(config, PRIOR_REPO, prior_root)
+    stats = {key: dict(value) for key, value in meta.stats.items()}
+    stats["observation.state"]["mean"] = stats["observation.state"]["mean"].copy()
+    stats["observation.state"]["mean"][1] = float("nan")
+    with pytest.raises(ValueError, match=r"statistics of `observation.state` hold NaN or inf.*regenerate"):
+        SkillRetPolicy(policy.config, dataset_stats=stats, dataset_meta=meta)
+
+
 def test_sample_weighting_is_refused_with_the_reason(prior_root):
     """lerobot-train's --sample_weighting calls forward(batch, reduction="none")."""
     config = tiny_config()

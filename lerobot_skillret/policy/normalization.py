@@ -68,6 +68,11 @@ class SkillNormalizer(nn.Module):
                 for name, value in stats[key].items()
                 if name in ("mean", "std", "min", "max")
             }
+            if not all(torch.isfinite(value).all() for value in entry.values()):
+                raise ValueError(
+                    f"skillret normalisation: the dataset statistics of `{key}` hold NaN or inf, so the dataset has "
+                    "non-finite values in that feature: regenerate the dataset or drop the episodes that hold them."
+                )
             if mode is NormalizationMode.MEAN_STD:
                 shift, scale = entry["mean"], entry["std"]
             else:
