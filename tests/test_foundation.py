@@ -84,6 +84,9 @@ def test_defaults_are_the_papers() -> None:
         ("stage", "pretrain"),
         ("retrieval_metric", "cosine"),
         ("vision_backbone", "vit_b_16"),
+        ("kl_weight", float("nan")),
+        ("skill_lr", float("nan")),
+        ("policy_obs_noise", float("nan")),
         ("encoder_mlp", (1024, 0)),
         ("retrieval_num_prior", 0),
     ],
@@ -91,6 +94,13 @@ def test_defaults_are_the_papers() -> None:
 def test_bad_values_name_the_field(field: str, value: object) -> None:
     with pytest.raises(ValueError, match=f"`{field}`"):
         SkillRetConfig(device="cpu", **{field: value})
+
+
+def test_a_prior_root_without_its_repo_id_is_refused_not_dropped() -> None:
+    """prior_repo_id=None means "no prior data": with a prior_root set the user meant a prior."""
+    with pytest.raises(ValueError, match=r"`prior_repo_id`.*prior_root=null"):
+        SkillRetConfig(device="cpu", stage="policy", prior_root="data/play")
+    SkillRetConfig(device="cpu", stage="policy", prior_root="data/play", prior_repo_id="local/play")
 
 
 def test_stages_import_one_way_without_cycles() -> None:

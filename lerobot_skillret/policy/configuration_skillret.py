@@ -7,6 +7,7 @@ Defaults are the paper's (Table 7 of the seed appendix; GPU-scale, as in `config
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from lerobot.configs.policies import PreTrainedConfig
@@ -172,6 +173,13 @@ class SkillRetConfig(PreTrainedConfig):
                 fail("skill_normalization_mapping", {kind: mode}, f"supported modes: {SKILL_NORMALIZATION_MODES}")
         if self.vision_backbone not in RESNETS:
             fail("vision_backbone", self.vision_backbone, f"choose one of torchvision's ResNets {RESNETS}")
+        if self.prior_root is not None and self.prior_repo_id is None:
+            fail(
+                "prior_repo_id",
+                None,
+                f"`prior_root`={self.prior_root!r} is set, so a prior was meant: pass --policy.prior_repo_id=<its repo "
+                "id> as well, or --policy.prior_root=null for the 'no prior data' ablation",
+            )
         if self.retrieval_metric not in RETRIEVAL_METRICS:
             fail("retrieval_metric", self.retrieval_metric, f"choose one of {RETRIEVAL_METRICS}")
         for name in (
@@ -192,7 +200,7 @@ class SkillRetConfig(PreTrainedConfig):
             fail("skill_prior_inputs", self.skill_prior_inputs, f"use one of {SKILL_PRIOR_INPUTS}")
         if self.policy_supervision not in POLICY_SUPERVISION:
             fail("policy_supervision", self.policy_supervision, f"use one of {POLICY_SUPERVISION}")
-        if self.policy_obs_noise < 0:
+        if not self.policy_obs_noise >= 0:  # written so that NaN fails too
             fail("policy_obs_noise", self.policy_obs_noise, "a noise standard deviation must be >= 0")
         if self.skill_steps is not None and not 1 <= self.skill_steps <= self.horizon:
             fail("skill_steps", self.skill_steps, f"use None (= H) or a value in [1, H = {self.horizon}]")
@@ -208,11 +216,11 @@ class SkillRetConfig(PreTrainedConfig):
             "policy_action_weight",
             "grad_clip_norm",
         ):
-            if getattr(self, name) < 0:
+            if not getattr(self, name) >= 0:
                 fail(name, getattr(self, name), "loss weights and clipping norms must be >= 0")
         for name in ("skill_lr", "tc_lr", "policy_lr"):
-            if getattr(self, name) <= 0:
-                fail(name, getattr(self, name), "a learning rate must be > 0")
+            if not 0 < getattr(self, name) < math.inf:
+                fail(name, getattr(self, name), "a learning rate must be a finite number > 0")
         if not 0.0 < self.retrieval_fraction <= 1.0:
             fail("retrieval_fraction", self.retrieval_fraction, "r is a share of the candidates, in (0, 1]")
         if self.retrieval_num_prior is not None and self.retrieval_num_prior < 1:
