@@ -15,6 +15,7 @@ of `__init__`'s `config` parameter, which must stay a class, not a string.
 
 import json
 import logging
+import warnings
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
@@ -340,6 +341,12 @@ class SkillRetPolicy(PreTrainedPolicy):
         return {key: torch.stack([f[key] for f in self._history_frames], dim=1) for key in self.observation_keys}
 
     def _choose_skill(self) -> Tensor:
+        if self.config.stage == "skills":
+            warnings.warn(
+                "skillret: this is a stage-1 (skills) checkpoint, whose latent policy is untrained: its rollouts "
+                "say nothing about the method. Evaluate a stage-2 checkpoint (lerobot-train --policy.stage=policy).",
+                stacklevel=3,
+            )
         history = self._stacked_history()
         size = history[self.observation_keys[0]].shape[0]
         ids = torch.full((size,), TARGET_ID, dtype=torch.long, device=self._device())
