@@ -235,6 +235,29 @@ def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
         PipelineConfig.from_args(path)
 
 
+@pytest.mark.parametrize(
+    ("override", "named"),
+    [  # each passed the config and failed only when its stage started, after the data and stage 1
+        ("--retrieval.args={fractoin: 0.1}", r"`retrieval\.args`: skillret-retrieve has no option --fractoin"),
+        ("--retrieval.args={fraction: 1.5}", r"`retrieval\.args`: .*`fraction`=1\.5"),
+        ("--policy.args={policy.horizn: 5}", r"`policy\.args` key `policy\.horizn` is no option of the skillret"),
+        ("--skills.args={optimzer.lr: 0.1}", r"`skills\.args` key `optimzer\.lr` is no lerobot-train option"),
+        ("--baselines.act.args={policy.chunk_sise: 5}", r"`baselines\.act\.args` key .* of the act policy"),
+        ("--eval.args={evl.use_async_envs: false}", r"`eval\.args` key `evl\.use_async_envs` is no lerobot-eval"),
+        ("--eval.episode_length=0", r"`eval\.episode_length` must be >= 1"),
+        ("--seeds=[-1]", r"seeds must be integers >= 0"),
+        ("--data.seed=-3", r"seeds must be integers >= 0"),
+        ("--skills.num_workers=-1", r"`skills` needs .* num_workers >= 0"),
+    ],
+)
+def test_config_refuses_what_a_stage_would_refuse_hours_later(tmp_path: Path, override: str, named: str) -> None:
+    path = tmp_path / "p.yaml"
+    path.write_text("methods: [skillret, act]\nbaselines: {act: {steps: 10}}\n")
+    PipelineConfig.from_args(path, ["--policy.args={policy.horizon: 5}", "--baselines.act.args={policy.chunk_size: 5}"])
+    with pytest.raises(ValueError, match=named):
+        PipelineConfig.from_args(path, [override])
+
+
 def test_config_overrides_a_baseline_from_the_command_line(tmp_path: Path) -> None:
     """`--baselines.act.steps=...` works as for any other key (a dict of sections refused it), the YAML's other
     options of that section are kept, and an unknown section is named."""

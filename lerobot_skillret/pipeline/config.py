@@ -22,6 +22,33 @@ from lerobot_skillret.kitchen.generate import (
 )
 from lerobot_skillret.kitchen.tasks import TASKS
 from lerobot_skillret.pipeline.methods import METHODS
+from lerobot_skillret.retrieval.cli import as_arguments
+
+
+def _check_option_keys(where: str, options: dict[str, Any], command: str, policy_type: str | None = None) -> None:
+    """Refuse an `args` key that `command` has no option for, before any stage runs (the command itself would only
+    refuse it when its stage starts, after the data and stage 1): its first part must be a field of the command's
+    config, and a `policy.` key's next part a field of that policy's config."""
+    from lerobot.configs.eval import EvalPipelineConfig
+    from lerobot.configs.train import TrainPipelineConfig
+
+    command_fields = {f.name for f in fields(TrainPipelineConfig if command == "lerobot-train" else EvalPipelineConfig)}
+    for key in options:
+        head, _, rest = key.partition(".")
+        if head not in command_fields:
+            raise ValueError(f"pipeline config: `{where}` key `{key}` is no {command} option (see {command} --help).")
+        if head == "policy" and policy_type is not None and rest:
+            import lerobot.policies  # noqa: F401  (registers LeRobot's policy types)
+            from lerobot.configs.policies import PreTrainedConfig
+
+            import lerobot_skillret.policy  # noqa: F401  (registers skillret)
+
+            policy_fields = {f.name for f in fields(PreTrainedConfig.get_choice_class(policy_type))} | {"path", "type"}
+            if rest.split(".")[0] not in policy_fields:
+                raise ValueError(
+                    f"pipeline config: `{where}` key `{key}` is no option of the {policy_type} policy "
+                    f"(see lerobot-train --policy.type={policy_type} --help)."
+                )
 
 
 @dataclass
@@ -166,9 +193,30 @@ class PipelineConfig:
         specs = {"skills": self.skills, "policy": self.policy} | {
             f"baselines.{k}": v for k, v in self.baselines.items()
         }
+        policy_types = {"skills": "skillret", "policy": "skillret"} | {  # act_ft_prior trains act_ft's policy
+            f"baselines.{k}": METHODS[k.removesuffix("_prior")].lerobot_type for k, _ in self.baselines.items()
+        }
+        seeds = [*self.seeds, self.data.seed, self.heldout.seed]
+        if any(not isinstance(seed, int) or seed < 0 for seed in seeds):
+            raise ValueError(
+                f"pipeline config: seeds must be integers >= 0 (`seeds`, `data.seed`, `heldout.seed`: {seeds})."
+            )
+        if self.eval.episode_length is not None and self.eval.episode_length < 1:
+            raise ValueError(
+                "pipeline config: `eval.episode_length` must be >= 1, or null for the task's own "
+                f"(got {self.eval.episode_length})."
+            )
+        try:
+            as_arguments(self.retrieval.args)
+        except ValueError as err:
+            raise ValueError(f"pipeline config: `retrieval.args`: {err}") from None
+        _check_option_keys("eval.args", self.eval.args, "lerobot-eval")
         for spec_name, spec in specs.items():
-            if spec.steps < 1 or spec.save_freq < 1 or spec.batch_size < 1:
-                raise ValueError(f"pipeline config: `{spec_name}` needs steps, save_freq and batch_size >= 1.")
+            if spec.steps < 1 or spec.save_freq < 1 or spec.batch_size < 1 or spec.num_workers < 0:
+                raise ValueError(
+                    f"pipeline config: `{spec_name}` needs steps, save_freq and batch_size >= 1, num_workers >= 0."
+                )
+            _check_option_keys(f"{spec_name}.args", spec.args, "lerobot-train", policy_types[spec_name])
             if spec.config_path is not None and not Path(spec.config_path).is_file():
                 raise FileNotFoundError(
                     f"pipeline config: `{spec_name}.config_path` {spec.config_path} not found (relative paths are "

@@ -26,6 +26,7 @@ from lerobot_skillret.kitchen.seeds import EVAL_SEED0
 from lerobot_skillret.pipeline.config import PipelineConfig, TrainSpec
 from lerobot_skillret.pipeline.methods import METHODS
 from lerobot_skillret.pipeline.stages import Stage
+from lerobot_skillret.retrieval.cli import as_arguments
 
 BIN = Path(sys.executable).parent
 PRETRAINED = Path("checkpoints/last/pretrained_model")
@@ -199,7 +200,7 @@ class Plan:
             str(stage.partial / "retrieval.safetensors"),
             "--report-dir",
             str(stage.partial / "report"),
-            *_retrieve_args(options),
+            *as_arguments(options),
         ]
         return stage
 
@@ -321,15 +322,6 @@ class Plan:
 
     def cells(self) -> list[Cell]:
         return [Cell(m, t, s) for s in self.cfg.seeds for t in self.cfg.tasks for m in self.cfg.methods]
-
-
-def _retrieve_args(options: dict[str, Any]) -> list[str]:
-    """{"num_prior": 1000, "exact": False} -> ["--num-prior=1000", "--no-exact"] (skillret-retrieve's argparse flags)."""
-    out = []
-    for key, value in options.items():
-        flag = key.replace("_", "-")
-        out.append((f"--{flag}" if value else f"--no-{flag}") if isinstance(value, bool) else f"--{flag}={value}")
-    return out
 
 
 def _repoint(path: Path, old: Path, new: Path) -> None:

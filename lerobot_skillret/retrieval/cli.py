@@ -19,7 +19,9 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from lerobot_skillret.retrieval.settings import ABLATIONS, EVERY_WINDOW, METRICS, MODES, RetrievalSettings, ablation
 
@@ -96,6 +98,27 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--device", help="torch device for the encoder (default: the checkpoint's, if available)")
     run.add_argument("--quiet", action="store_true", help="no progress bars")
     return parser
+
+
+def as_arguments(options: Mapping[str, Any]) -> list[str]:
+    """{"num_prior": 1000, "exact": False} -> ["--num-prior=1000", "--no-exact"]: options a pipeline config gives, in
+    this CLI's form. Raises ValueError for an option it does not have or a value it cannot take, so that a config
+    is refused before any stage runs rather than when its retrieval stage starts."""
+    argv = []
+    for key, value in options.items():
+        flag = key.replace("_", "-")
+        argv.append((f"--{flag}" if value else f"--no-{flag}") if isinstance(value, bool) else f"--{flag}={value}")
+    parser = build_parser()
+    parser.exit_on_error = False
+    inputs = [f"--{name}=_" for name in ("checkpoint", "prior-root", "target-root", "output")]
+    try:
+        args, unknown = parser.parse_known_args([*inputs, *argv])
+    except argparse.ArgumentError as error:
+        raise ValueError(f"skillret-retrieve refuses {error}") from None
+    if unknown:
+        raise ValueError(f"skillret-retrieve has no option {unknown[0]} (see skillret-retrieve --help)")
+    settings_from_args(args).resolve()  # the settings' own checks (e.g. a fraction in (0, 1])
+    return argv
 
 
 def settings_from_args(args: argparse.Namespace) -> RetrievalSettings:
