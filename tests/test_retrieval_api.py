@@ -247,3 +247,21 @@ def test_a_report_folder_holding_other_files_is_refused_and_left_intact(setup, t
     assert main(cli_args(setup, output, "--report-dir", str(report))) == 0
     assert main(cli_args(setup, output, "--report-dir", str(report))) == 0  # an earlier report is replaced
     assert (report / "summary.json").is_file() and keep.read_bytes() == b"not mine"
+
+
+NO_GPU = "cuda" if not torch.cuda.is_available() else "tpu"
+
+
+@pytest.mark.parametrize(
+    ("device", "output_name", "named"),
+    [
+        ("gpu", "ret.safetensors", "Unknown device gpu"),  # was "the weights are truncated or corrupt"
+        (NO_GPU, "ret.safetensors", "device"),  # was a raw driver RuntimeError
+        (None, "", "is a folder: pass the retrieval file's path"),  # was a raw IsADirectoryError at the very end
+    ],
+)
+def test_a_bad_device_or_output_is_one_line_naming_it(setup, tmp_path, capsys, device, output_name, named):
+    with pytest.raises(SystemExit) as stop:
+        main(cli_args(setup, tmp_path / output_name, *(["--device", device] if device else [])))
+    assert stop.value.code == 2
+    assert named in capsys.readouterr().err

@@ -76,6 +76,10 @@ def retrieve(
     """
     from lerobot_skillret.data.windows import EpisodeColumns
 
+    if output is not None and Path(output).is_dir():
+        raise ValueError(
+            f"--output {output} is a folder: pass the retrieval file's path (e.g. {output}/retrieval.safetensors)"
+        )
     if report_dir is not None:
         check_replaceable_dir(Path(report_dir), "summary.json", "pass a new or empty folder (e.g. <output>_report)")
     pretrained = resolve_checkpoint(checkpoint)
@@ -167,12 +171,15 @@ def resolve_checkpoint(path: str | Path) -> Path:
 def load_skill_model(path: str | Path, device: str | None = None) -> SkillRetPolicy:
     """The stage-1 policy in eval mode on `device` (default: the checkpoint's own, if available)."""
     from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.utils.device_utils import is_torch_device_available
 
     from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
 
     path = resolve_checkpoint(path)
     config = PreTrainedConfig.from_pretrained(path)
     if device is not None:
+        if not is_torch_device_available(device):  # raises ValueError for a name that is no device
+            raise ValueError(f"device {device!r} is not available on this machine; use --device cpu")
         config.device = device
     policy = SkillRetPolicy.from_pretrained(path, config=config)
     if policy.image_keys:
