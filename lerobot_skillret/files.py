@@ -15,6 +15,7 @@ import tempfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 _UMASK = os.umask(0o022)  # read once at import (os.umask can only be read by setting it), then restored
 os.umask(_UMASK)
@@ -35,6 +36,17 @@ def write_atomic(path: str | Path, write: Callable[[str], None]) -> Path:
         if os.path.exists(tmp):
             os.remove(tmp)
     return path
+
+
+def read_json(path: str | Path) -> Any:
+    """The JSON in `path`; a file cut short (a copy, a disk filled, an edit) is a ValueError naming it."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise ValueError(
+            f"{path} is not valid JSON ({err}): it is truncated or corrupt; restore or regenerate it"
+        ) from None
 
 
 def write_text_atomic(path: str | Path, text: str) -> Path:

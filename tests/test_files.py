@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from lerobot_skillret.files import write_text_atomic
+import pytest
+
+from lerobot_skillret.files import read_json, write_text_atomic
 
 
 def test_an_atomic_write_has_the_permissions_of_a_plain_write(tmp_path: Path) -> None:
@@ -16,3 +18,9 @@ def test_an_atomic_write_has_the_permissions_of_a_plain_write(tmp_path: Path) ->
     assert atomic.read_text() == "x"
     assert atomic.stat().st_mode == plain.stat().st_mode
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+def test_a_truncated_json_file_is_named(tmp_path: Path) -> None:
+    path = write_text_atomic(tmp_path / "info.json", '{"total_frames": 1')
+    with pytest.raises(ValueError, match=r"info\.json is not valid JSON .* truncated or corrupt"):
+        read_json(path)

@@ -628,3 +628,17 @@ def test_table_refuses_a_folder_without_published_cells_and_keeps_its_report(tmp
     assert "output_dir" in result.stderr and "nothing written" in result.stderr
     assert (tmp_path / "results.md").read_text() == "the run's table"
     assert not (tmp_path / "results.png").exists()
+
+
+def test_a_truncated_cell_or_an_output_dir_that_is_a_file_is_one_line(tmp_path: Path) -> None:
+    """A cell.json cut short (a copy, a full disk) and an output_dir that is a file were raw tracebacks."""
+    cell = tmp_path / "results" / "skillret" / "cook" / "seed0" / "cell.json"
+    cell.parent.mkdir(parents=True)
+    cell.write_text('{"method": "skillret", "ta')
+    result = _pipeline_cli("table", "--results", str(tmp_path / "results"))
+    assert result.returncode == 2
+    assert f"{cell} is not valid JSON" in result.stderr and "Traceback" not in result.stderr
+    a_file = tmp_path / "a_file"
+    a_file.write_text("")
+    with pytest.raises(ValueError, match=r"`output_dir` .*a_file is a file"):
+        PipelineConfig.from_args("configs/pipeline/smoke.yaml", [f"--output_dir={a_file}"])

@@ -11,7 +11,7 @@ import json
 from collections.abc import Sequence
 from pathlib import Path
 
-from lerobot_skillret.files import write_text_atomic
+from lerobot_skillret.files import read_json, write_text_atomic
 
 PRIMITIVE_KEY = "primitive_index"
 NAMES_FILE = "meta/primitives.json"
@@ -26,11 +26,11 @@ def load_label_names(root: str | Path) -> list[str] | None:
     "primitive <i>")."""
     path = Path(root) / NAMES_FILE
     if path.is_file():
-        names = json.loads(path.read_text())
+        names = read_json(path)
         return [str(n) for n in names] if isinstance(names, list) else None
     info = Path(root) / "meta" / "info.json"
     if info.is_file():
-        names = json.loads(info.read_text()).get("features", {}).get(PRIMITIVE_KEY, {}).get("names")
+        names = read_json(info).get("features", {}).get(PRIMITIVE_KEY, {}).get("names")
         if isinstance(names, list) and len(names) > 1 and all(isinstance(n, str) for n in names):
             return names
     return None

@@ -48,6 +48,7 @@ import torch
 from tensordict import TensorDict
 
 from lerobot_skillret.data.fingerprint import dataset_fingerprint
+from lerobot_skillret.files import read_json
 
 log = logging.getLogger(__name__)
 CACHE_DIRNAME = ".skillret_cache"
@@ -102,7 +103,7 @@ class EpisodeColumns:
 
     @classmethod
     def _load(cls, folder: Path) -> EpisodeColumns:
-        info = json.loads((folder / _INFO_FILE).read_text())
+        info = read_json(folder / _INFO_FILE)
         td = TensorDict.load_memmap(folder / "td")
         return cls(
             td=td,
@@ -119,7 +120,7 @@ def _check_root(root: Path) -> None:
             f"No LeRobotDataset at {root} (missing meta/info.json). Pass the dataset's local root folder "
             "(the one holding meta/ and data/), e.g. the output folder of `skillret-generate`."
         )
-    if json.loads((root / "meta" / "info.json").read_text()).get("total_frames", 0) == 0:
+    if read_json(root / "meta" / "info.json").get("total_frames", 0) == 0:
         raise ValueError(
             f"The LeRobotDataset at {root} has zero frames: record or generate at least one episode "
             "(add_frame + save_episode, then finalize) before sampling windows from it."
@@ -238,7 +239,7 @@ def _remove_stale(cache_dir: Path, keep: str, root: Path) -> None:
     _, version, fingerprint = keep.split("-")[:3]
     for old in cache_dir.glob("columns-*"):
         info = old / _INFO_FILE
-        if old.name == keep or not info.is_file() or json.loads(info.read_text()).get("root") != str(root.resolve()):
+        if old.name == keep or not info.is_file() or read_json(info).get("root") != str(root.resolve()):
             continue
         if old.name.split("-")[1:3] != [version, fingerprint]:
             shutil.rmtree(old, ignore_errors=True)

@@ -11,12 +11,12 @@ features here without robosuite.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from lerobot_skillret.data.labels import PRIMITIVE_KEY
+from lerobot_skillret.files import read_json
 from lerobot_skillret.kitchen import layout
 
 CAMERAS = ("agentview", "eye_in_hand")
@@ -115,4 +115,4 @@ def load_kitchen_meta(root: str | Path) -> dict:
         raise FileNotFoundError(
             f"{path} not found: {root} was not written by `skillret-generate` (only kitchen datasets have it)."
         )
-    return json.loads(path.read_text())
+    return read_json(path)

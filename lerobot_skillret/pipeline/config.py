@@ -196,6 +196,9 @@ class PipelineConfig:
         policy_types = {"skills": "skillret", "policy": "skillret"} | {  # act_ft_prior trains act_ft's policy
             f"baselines.{k}": METHODS[k.removesuffix("_prior")].lerobot_type for k, _ in self.baselines.items()
         }
+        for name in ("output_dir", "results_dir"):
+            if getattr(self, name) is not None and Path(getattr(self, name)).is_file():
+                raise ValueError(f"pipeline config: `{name}` {getattr(self, name)} is a file; pass a folder path.")
         seeds = [*self.seeds, self.data.seed, self.heldout.seed]
         if any(not isinstance(seed, int) or seed < 0 for seed in seeds):
             raise ValueError(

@@ -9,7 +9,6 @@ encoder on the window itself) gives the floor that the decoder allows.
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -17,7 +16,7 @@ from typing import Any
 import torch
 
 from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
-from lerobot_skillret.files import write_json_atomic, write_text_atomic
+from lerobot_skillret.files import read_json, write_json_atomic, write_text_atomic
 from lerobot_skillret.pipeline.methods import METHODS
 from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.results import HELDOUT_FILE
@@ -62,14 +61,14 @@ def score_cell(plan: Plan, cell: Cell, columns: EpisodeColumns) -> dict[str, Any
 
 def _is_current(path: Path, steps: list[int]) -> bool:
     """A stored score counts only if it covers the checkpoints the protocol evaluates now."""
-    return path.exists() and [r["step"] for r in json.loads(path.read_text())["checkpoints"]] == steps
+    return path.exists() and [r["step"] for r in read_json(path)["checkpoints"]] == steps
 
 
 def publish_heldout(plan: Plan, cell: Cell, results_dir: Path) -> None:
     """Copy `cell`'s score next to its published eval JSONs, if those came from this output folder."""
     published = plan.published_dir(results_dir, cell)
     summary = published / "cell.json"
-    if summary.is_file() and json.loads(summary.read_text()).get("output_dir") == str(plan.root):
+    if summary.is_file() and read_json(summary).get("output_dir") == str(plan.root):
         write_text_atomic(published / HELDOUT_FILE, plan.heldout_path(cell).read_text())
 
 

@@ -8,7 +8,7 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from lerobot_skillret.files import staged_dir, write_json_atomic
+from lerobot_skillret.files import read_json, staged_dir, write_json_atomic
 from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.results import HELDOUT_FILE
 
@@ -20,7 +20,7 @@ def read_eval(eval_info: Path) -> dict[str, float | int]:
     Progress is lerobot-eval's `avg_max_reward`: the kitchen's reward is the fraction of the goals unmet at reset
     that are met.
     """
-    overall = json.loads(eval_info.read_text())["overall"]
+    overall = read_json(eval_info)["overall"]
     return {
         "success": float(overall["pc_success"]) / 100.0,
         "subgoals": float(overall["avg_max_reward"]),

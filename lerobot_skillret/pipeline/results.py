@@ -6,14 +6,13 @@ the goals unmet at reset that were met), which still separates methods when ever
 
 from __future__ import annotations
 
-import json
 from collections import defaultdict
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from lerobot_skillret.files import write_atomic, write_text_atomic
+from lerobot_skillret.files import read_json, write_atomic, write_text_atomic
 from lerobot_skillret.pipeline.methods import METHODS
 
 PUBLISHED_CELLS = "*/*/seed*/cell.json"  # results_dir layout: <method>/<task>/seed<s>/cell.json
@@ -25,7 +24,7 @@ def collect(folder: Path, pattern: str = PUBLISHED_CELLS) -> dict[tuple[str, str
     """Every cell summary (or held-out score) under `folder` matching `pattern`, grouped by (method, task)."""
     cells: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for path in sorted(folder.glob(pattern)):
-        cell = json.loads(path.read_text())
+        cell = read_json(path)
         cells[(cell["method"], cell["task"])].append(cell)
     return dict(cells)
 

@@ -11,7 +11,6 @@ Finished stages are skipped on re-run, so an interrupted run is continued by run
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import time
@@ -19,6 +18,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
+from lerobot_skillret.files import read_json
 from lerobot_skillret.pipeline.config import PipelineConfig
 from lerobot_skillret.pipeline.methods import METHODS
 from lerobot_skillret.pipeline.plan import Cell, Plan
@@ -64,7 +64,7 @@ def run_cell(plan: Plan, runner: StageRunner, cell: Cell, results_dir: Path | No
         for stage in built:
             runner.check_built(stage)
         log.info("[skip] cell %s/%s/seed%d (summary exists)", cell.method, cell.task, cell.seed)
-        summary = json.loads(plan.cell_path(cell).read_text())
+        summary = read_json(plan.cell_path(cell))
         if results_dir is not None and not plan.published_dir(results_dir, cell).exists():
             publish_cell(plan, cell, summary, results_dir)  # results_dir was added after the cell finished
         return summary
@@ -225,7 +225,10 @@ def main(argv: list[str] | None = None) -> None:
     else:
         if not args.results.is_dir():
             parser.exit(2, f"skillret-pipeline: {args.results} does not exist: no finished cells yet.\n")
-        cells = collect(args.results)
+        try:
+            cells = collect(args.results)
+        except ValueError as err:  # a cell.json cut short
+            parser.exit(2, f"skillret-pipeline: {err}\n")
         if not cells:  # an empty table would replace the folder's results.md and plots
             hint = (
                 "it is a run's output_dir, whose results.md every `skillret-pipeline run` rewrites; "

@@ -11,7 +11,6 @@ is built under an exclusive file lock, so a second process waits for it and then
 from __future__ import annotations
 
 import fcntl
-import json
 import logging
 import os
 import shutil
@@ -23,7 +22,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from lerobot_skillret.files import write_json_atomic
+from lerobot_skillret.files import read_json, write_json_atomic
 
 log = logging.getLogger("skillret.pipeline")
 
@@ -118,14 +117,14 @@ class StageRunner:
 
     def _record(self, path: Path, name: str, value: object) -> None:
         with file_lock(path.with_name(f".{path.stem}.lock"), path.name):
-            entries = json.loads(path.read_text()) if path.exists() else {}
+            entries = read_json(path) if path.exists() else {}
             entries[name] = value
             write_json_atomic(path, entries)
 
     def check_built(self, stage: Stage) -> None:
         """An artifact built by another command (the config changed since), or from other inputs than its command
         names (its tags: e.g. the kitchen's files changed since), must not be reused silently."""
-        built = json.loads(self.commands_path.read_text()).get(stage.name) if self.commands_path.exists() else None
+        built = read_json(self.commands_path).get(stage.name) if self.commands_path.exists() else None
         if built is not None and not stage.same_build(built):
             changed = sorted(set(stage.identity) ^ set(built))
             raise RuntimeError(
@@ -137,7 +136,7 @@ class StageRunner:
     def timing(self, name: str) -> float | None:
         if not self.timings_path.exists():
             return None
-        return json.loads(self.timings_path.read_text()).get(name)
+        return read_json(self.timings_path).get(name)
 
     def run(self, stage: Stage) -> bool:
         """Run `stage` unless its artifact exists (perhaps built by another process meanwhile); True if it ran."""

@@ -13,7 +13,6 @@ No `from __future__ import annotations` here: LeRobot resolves the policy's conf
 of `__init__`'s `config` parameter, which must stay a class, not a string.
 """
 
-import json
 import logging
 import warnings
 from collections import deque
@@ -31,6 +30,7 @@ from safetensors import SafetensorError, safe_open
 from safetensors.torch import load_file
 from torch import Tensor
 
+from lerobot_skillret.files import read_json
 from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
 from lerobot_skillret.policy.latent_policy import RETRIEVED_ID, TARGET_ID, LatentPolicy
 from lerobot_skillret.policy.normalization import SkillNormalizer
@@ -405,7 +405,7 @@ class SkillRetPolicy(PreTrainedPolicy):
         """LeRobot's loader, with errors that name the file and the fix instead of a raw size mismatch or
         `SafetensorError` (a stage-2 dataset with another layout than the checkpoint's; a truncated file)."""
         saved = Path(model_file).parent / "config.json"
-        stored = json.loads(saved.read_text()) if saved.is_file() else None
+        stored = read_json(saved) if saved.is_file() else None
         _check_checkpoint_features(model.config, Path(model_file).parent, stored)
         try:
             if _stage1_policy_differs(model, model_file, stored):

@@ -13,7 +13,6 @@
 
 from __future__ import annotations
 
-import json
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,7 +25,7 @@ from tqdm.auto import tqdm
 from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
 from lerobot_skillret.data.labels import PRIMITIVE_KEY, load_label_names
 from lerobot_skillret.data.retrieval_file import RetrievalResult
-from lerobot_skillret.files import check_replaceable_dir, staged_dir
+from lerobot_skillret.files import check_replaceable_dir, read_json, staged_dir
 from lerobot_skillret.retrieval.kernels import NearestTarget, Selection, smallest
 from lerobot_skillret.retrieval.report import ReportInputs, label_names, relevant_labels, write_report
 from lerobot_skillret.retrieval.settings import EVERY_WINDOW, RetrievalSettings
@@ -159,7 +158,7 @@ def resolve_checkpoint(path: str | Path) -> Path:
             "--policy.stage=skills)."
         )
     checkpoint_fingerprint(path)  # raises a clear error when config.json or model.safetensors is missing
-    kind = json.loads((path / "config.json").read_text()).get("type")
+    kind = read_json(path / "config.json").get("type")
     if kind != "skillret":
         raise ValueError(
             f"{path} is a `{kind}` checkpoint, not a skillret one: retrieval needs the skill encoder of a "
