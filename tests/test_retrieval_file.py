@@ -41,6 +41,11 @@ def test_refusals_are_clear(tmp_path):
     save_file({"prior_index": torch.zeros(1, dtype=torch.int64)}, str(old), metadata={"schema_version": "0"})
     with pytest.raises(ValueError, match="schema version '0'"):
         RetrievalResult.load(old)
+    truncated = tmp_path / "truncated.safetensors"
+    data = make_result().save(tmp_path / "whole.safetensors").read_bytes()
+    truncated.write_bytes(data[: len(data) // 2])
+    with pytest.raises(ValueError, match=r"truncated\.safetensors cannot be read .* regenerate"):
+        RetrievalResult.load(truncated)
     with pytest.raises(ValueError, match=r"needs prior_index \[K\], distance \[K\] and latent \[K, D\]"):
         RetrievalResult(torch.arange(3), torch.zeros(2), torch.zeros(3, 4))
     result = make_result()

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from safetensors import safe_open
+from safetensors import SafetensorError, safe_open
 from safetensors.torch import load_file, save_file
 
 from lerobot_skillret.files import write_atomic
@@ -89,15 +89,21 @@ class RetrievalResult:
                 f"Retrieval file {path} does not exist. Run `skillret-retrieve` first, or disable retrieval "
                 "(--policy.use_retrieval=false) for the paper's 'no retrieval' ablation."
             )
-        with safe_open(str(path), framework="pt") as handle:
-            metadata = handle.metadata() or {}
+        try:
+            with safe_open(str(path), framework="pt") as handle:
+                metadata = handle.metadata() or {}
+            tensors = load_file(str(path))
+        except SafetensorError as error:
+            raise ValueError(
+                f"Retrieval file {path} cannot be read ({error}): it is truncated or corrupt. Re-run "
+                "`skillret-retrieve` to regenerate it."
+            ) from None
         version = metadata.get("schema_version")
         if version != SCHEMA_VERSION:
             raise ValueError(
                 f"{path} has retrieval schema version {version!r}; this skillret reads version "
                 f"{SCHEMA_VERSION!r}. Re-run `skillret-retrieve` to regenerate it."
             )
-        tensors = load_file(str(path))
         return cls(
             prior_index=tensors["prior_index"],
             distance=tensors["distance"],
