@@ -239,6 +239,14 @@ def test_nan_column_is_named(dataset_root, tmp_path):
     assert not any((tmp_path / "cache").glob("columns-*"))
 
 
+def test_a_truncated_parquet_file_is_named(dataset_root, tmp_path):
+    root = _copy_dataset(dataset_root, tmp_path / "cut")
+    (path,) = sorted((root / "data").glob("*/*.parquet"))
+    path.write_bytes(path.read_bytes()[:-200])
+    with pytest.raises(ValueError, match=r"data files of the dataset at .*cut .*truncated or corrupt"):
+        EpisodeColumns.from_dataset(REPO, root, cache_dir=tmp_path / "cache")
+
+
 def test_rows_out_of_index_order_are_refused_by_both_readers(tmp_path):
     """Windows and retrieval indices are row numbers: a dataset whose `index` column is not 0..N-1 is refused."""
     image_root = make_synthetic_dataset(tmp_path / "img", num_episodes=2, min_len=5, max_len=5, with_images=True)

@@ -142,9 +142,16 @@ def _column_to_numpy(column: pa.ChunkedArray, num_frames: int, shape: tuple[int,
 
 def _export(repo_id: str, root: Path, wanted: list[str] | None) -> tuple[TensorDict, dict]:
     """Read the dataset once through LeRobot's loader and return (columns TensorDict, info dict)."""
+    from datasets.exceptions import DatasetGenerationError
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    dataset = LeRobotDataset(repo_id, root=root)
+    try:
+        dataset = LeRobotDataset(repo_id, root=root)
+    except (DatasetGenerationError, pa.ArrowInvalid) as error:
+        raise ValueError(
+            f"Cannot read the data files of the dataset at {root} ({error.__cause__ or error}): a parquet file under "
+            "data/ is truncated or corrupt (a copy, a full disk). Regenerate the dataset or restore its files."
+        ) from None
     num_frames = len(dataset.hf_dataset)
     lowdim = {k: ft for k, ft in dataset.features.items() if ft["dtype"] not in _SKIPPED_DTYPES}
     if wanted is not None:
