@@ -47,9 +47,8 @@ def generator(seed: int, stream: int) -> torch.Generator:
 
 @dataclass
 class Encoded:
-    """Encoder outputs of the windows at `anchors` (global frame indices)."""
+    """Encoder outputs of a list of windows, in the order of their anchors."""
 
-    anchors: Tensor  # [n] int64
     mean: Tensor  # [n, D] float32
     log_var: Tensor | None  # [n, D] float32, kept only for the KL metric
 
@@ -246,7 +245,7 @@ def encode_windows(
             mean[start : start + batch_size] = batch_mean.float().cpu()
             if log_var is not None:
                 log_var[start : start + batch_size] = batch_log_var.float().cpu()
-    return Encoded(anchors=anchors, mean=mean, log_var=log_var)
+    return Encoded(mean=mean, log_var=log_var)
 
 
 def select_windows(
