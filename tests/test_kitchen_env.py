@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -172,11 +173,23 @@ def test_lerobots_make_env_path_builds_the_kitchen():
         ("task", "no_such_task", "Unknown panda_kitchen task 'no_such_task'. Pass --env.task=<one of"),
         ("episode_length", 0, "--env.episode_length must be >= 1"),
         ("render_stride", 0, "--env.render_stride must be >= 1"),
+        ("image_size", 0, "--env.image_size must be >= 1 pixel"),
+        ("cameras", ("agentviw",), "--env.cameras: unknown camera(s) ['agentviw']"),
+        ("fps", 5, "--env.fps is fixed: the kitchen runs at 20 Hz"),
     ],
 )
 def test_env_config_refuses_bad_values(field, value, message):
-    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace("[", r"\[")):
+    with pytest.raises(ValueError, match=re.escape(message)):
         PandaKitchenEnv(**{field: value})
+
+
+def test_gym_make_checks_its_options_as_the_env_config_does():
+    """episode_length=0 used to mean the task's own length and -3 a one-step episode; a bare camera name
+    (`--env.cameras=agentview`) was split into letters."""
+    for length in (0, -3):
+        with pytest.raises(ValueError, match=f"episode_length must be >= 1.*got {length}"):
+            gym.make(gym_id("open_drawer"), episode_length=length)
+    assert PandaKitchenEnv(cameras="agentview").cameras == ("agentview",)
 
 
 @pytest.mark.slow

@@ -18,7 +18,7 @@ from lerobot.envs.configs import EnvConfig
 
 from lerobot_skillret.kitchen import observations as O
 from lerobot_skillret.kitchen.layout import CONTROL_FREQ
-from lerobot_skillret.kitchen.registration import register_envs
+from lerobot_skillret.kitchen.registration import check_env_options, register_envs
 from lerobot_skillret.kitchen.tasks import TASKS
 
 register_envs()
@@ -40,13 +40,12 @@ class PandaKitchenEnv(EnvConfig):
     def __post_init__(self):
         if self.task not in TASKS:
             raise ValueError(f"Unknown panda_kitchen task {self.task!r}. Pass --env.task=<one of {sorted(TASKS)}>.")
-        if self.episode_length is not None and self.episode_length < 1:
-            raise ValueError(
-                f"--env.episode_length must be >= 1 (or null for the task's own); got {self.episode_length}"
-            )
-        if self.render_stride < 1:
-            raise ValueError(f"--env.render_stride must be >= 1; got {self.render_stride}")
-        self.cameras = O.check_cameras(self.cameras)
+        if self.fps != CONTROL_FREQ:  # lerobot-eval would only label its videos with it
+            raise ValueError(f"--env.fps is fixed: the kitchen runs at {CONTROL_FREQ} Hz; got {self.fps}")
+        try:
+            self.cameras = check_env_options(self.cameras, self.image_size, self.episode_length, self.render_stride)
+        except ValueError as error:
+            raise ValueError(f"--env.{error}") from None
         self.features = {"action": PolicyFeature(type=FeatureType.ACTION, shape=(len(O.ACTION_NAMES),))}
         self.features_map = {"action": "action", **O.ENV_TO_DATASET}
         types = {"agent_pos": FeatureType.STATE, "environment_state": FeatureType.ENV}

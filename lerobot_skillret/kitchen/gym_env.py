@@ -17,6 +17,7 @@ from gymnasium import spaces
 from lerobot_skillret.kitchen import observations as O
 from lerobot_skillret.kitchen.expert import reset_scene
 from lerobot_skillret.kitchen.layout import CONTROL_FREQ
+from lerobot_skillret.kitchen.registration import check_env_options
 from lerobot_skillret.kitchen.rendering import CameraRenderer
 from lerobot_skillret.kitchen.scene import KitchenScene
 from lerobot_skillret.kitchen.tasks import get_task
@@ -36,17 +37,15 @@ class KitchenEnv(gym.Env):
         render_mode: str = "rgb_array",
         render_stride: int = 1,
     ):
-        if render_stride < 1:
-            raise ValueError(f"render_stride must be >= 1 (got {render_stride})")
+        self.cameras = check_env_options(cameras, image_size, episode_length, render_stride)
         self._task = get_task(task)
         self.task = task
         self.task_description = self._task.description
-        self.cameras = O.check_cameras(cameras)
         self.image_size = image_size
         self.render_mode = render_mode
         self.render_stride = render_stride
         self._frame: np.ndarray | None = None
-        self._max_episode_steps = int(episode_length or self._task.max_steps)
+        self._max_episode_steps = self._task.max_steps if episode_length is None else int(episode_length)
         self.scene = KitchenScene()
         self._cam = CameraRenderer(self.scene, image_size) if self.cameras else None
         self._viewer: CameraRenderer | None = None

@@ -38,7 +38,7 @@ def image_key(camera: str) -> str:
 
 
 def check_cameras(cameras) -> tuple[str, ...]:
-    cameras = tuple(cameras)
+    cameras = (cameras,) if isinstance(cameras, str) else tuple(cameras)  # `--env.cameras=agentview`: one camera
     unknown = [c for c in cameras if c not in CAMERAS]
     if unknown:
         raise ValueError(f"unknown camera(s) {unknown}; choose from {CAMERAS}")
