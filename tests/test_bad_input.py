@@ -93,6 +93,19 @@ def test_nan_in_the_dataset_statistics_names_the_feature(prior_root):
         SkillRetPolicy(policy.config, dataset_stats=stats, dataset_meta=meta)
 
 
+def test_an_observation_of_another_shape_than_trained_is_named(prior_root):
+    """An env giving other observations than the policy was trained on (another image size, another state layout)
+    used to run silently (a larger image is centre-cropped) or fail deep in a reshape."""
+    policy = build_policy(tiny_config(), PRIOR_REPO, prior_root).eval()
+    (size,) = policy.config.input_features["observation.state"].shape
+    observation = {key: torch.zeros(1, *policy.config.input_features[key].shape) for key in policy.observation_keys}
+    observation["observation.state"] = torch.zeros(1, size + 2)
+    with pytest.raises(
+        ValueError, match=rf"trained on `observation.state` of shape \({size},\); got \(1, {size + 2}\)"
+    ):
+        policy.select_action(observation)
+
+
 def test_sample_weighting_is_refused_with_the_reason(prior_root):
     """lerobot-train's --sample_weighting calls forward(batch, reduction="none")."""
     config = tiny_config()

@@ -111,8 +111,21 @@ class SkillRetPolicy(PreTrainedPolicy):
         """Normalised observation tensors of `raw` at time `steps` of (B, T, ...) (`...`: no time axis)."""
         device = self._device()
         missing = [key for key in self.observation_keys if key not in raw]
+        hint = " (lerobot-eval: give the env the policy's cameras and size, --env.cameras=[...] --env.image_size=...)"
         if missing:
-            raise KeyError(f"skillret needs observation key(s) {missing}; the batch has {sorted(raw)}.")
+            raise KeyError(
+                f"skillret needs observation key(s) {missing}; the batch has {sorted(raw)}"
+                + (hint if any(key in self.image_keys for key in missing) else "")
+                + "."
+            )
+        for key in self.observation_keys:
+            shape = tuple(self.config.input_features[key].shape)
+            if tuple(raw[key].shape[-len(shape) :]) != shape:
+                raise ValueError(
+                    f"skillret was trained on `{key}` of shape {shape}; got {tuple(raw[key].shape)}"
+                    + (hint if key in self.image_keys else "")
+                    + "."
+                )
         return {
             key: self.normalizer.normalize(key, raw[key][(slice(None), steps)].to(device, torch.float32))
             for key in self.observation_keys
