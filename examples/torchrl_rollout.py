@@ -13,6 +13,7 @@ import argparse
 from pathlib import Path
 
 import torch
+from lerobot.configs.policies import PreTrainedConfig
 from torchrl.envs import GymEnv
 
 import lerobot_skillret  # noqa: F401  (registers the gym ids)
@@ -20,7 +21,12 @@ from lerobot_skillret.kitchen.seeds import EVAL_SEED0  # held-out initial states
 from lerobot_skillret.kitchen.tasks import get_task
 from lerobot_skillret.pipeline.torchrl_actor import LeRobotActor
 
-OBS_KEYS = ["agent_pos", "environment_state"]
+
+def camera_options(checkpoint: Path) -> dict:
+    """The env's cameras and image size, read from the checkpoint's image features (observation.images.<camera>)."""
+    features = PreTrainedConfig.from_pretrained(checkpoint).input_features
+    images = {key.rsplit(".", 1)[1]: feature.shape for key, feature in features.items() if ".images." in key}
+    return {"cameras": tuple(images), "image_size": next(iter(images.values()))[-1]} if images else {}
 
 
 def main() -> None:
@@ -31,14 +37,16 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     max_steps = get_task(args.task).max_steps
-    env = GymEnv(f"gym_panda_kitchen/{args.task}")
+    cameras = camera_options(args.checkpoint)
+    env = GymEnv(f"gym_panda_kitchen/{args.task}", **cameras)
+    obs_keys = ["agent_pos", "environment_state", *(["pixels"] if cameras else [])]
     # the policy sees the task's description, as lerobot-eval gives it (language-conditioned policies read it)
-    actor = LeRobotActor.from_pretrained(args.checkpoint, get_task(args.task).description, OBS_KEYS)
+    actor = LeRobotActor.from_pretrained(args.checkpoint, get_task(args.task).description, obs_keys)
     successes = 0
     for episode in range(args.episodes):
-        env.set_seed(EVAL_SEED0 + episode)
+        initial = env.reset(seed=EVAL_SEED0 + episode)  # the initial state lerobot-eval's seed gives
         actor.reset()  # the policy's observation history starts afresh with each episode
-        rollout = env.rollout(max_steps, actor, break_when_any_done=True)
+        rollout = env.rollout(max_steps, actor, auto_reset=False, tensordict=initial, break_when_any_done=True)
         success = bool(rollout["next", "terminated"].any())  # a kitchen episode terminates only on success
         progress = float(rollout["next", "reward"].max())
         successes += success
