@@ -101,3 +101,13 @@ def test_push_to_hub_uploads_everything_with_a_method_card(trained, tmp_path, mo
     # what was uploaded loads back into the same behaviour
     for a, b in zip(_rollout(trained), _rollout(SkillRetPolicy.from_pretrained(model)), strict=True):
         assert torch.equal(a, b)
+
+
+def test_a_stage1_card_names_the_prior_and_says_the_policy_is_untrained(tmp_path, monkeypatch):
+    """A stage-1 run's --dataset is the prior: its card used to call it the target and the prior `none`."""
+    monkeypatch.setattr(RepoCard, "validate", lambda self, *a, **k: None)  # it asks the Hub (offline here)
+    root = make_synthetic_dataset(tmp_path / "prior", PRIOR_REPO, num_episodes=2, seed=0)
+    policy = build_policy(tiny_config(), PRIOR_REPO, root)
+    card = policy.generate_model_card(PRIOR_REPO, "skillret", None, None).content
+    assert f"skills pre-trained on the prior dataset (`{PRIOR_REPO}`)" in card
+    assert "latent policy is untrained" in card and "target dataset (`" not in card

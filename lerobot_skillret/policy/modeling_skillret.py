@@ -453,15 +453,23 @@ class SkillRetPolicy(PreTrainedPolicy):
         method = (
             "\n## Method: skill-based imitation with retrieval from prior data (skillret)\n\n"
             "A skill VAE (LSTM encoder, closed-loop LSTM decoder, learned prior, temporal-prediction loss) is "
-            f"pre-trained on H={self.config.horizon}-step windows of the prior dataset "
-            f"(`{self.config.prior_repo_id or 'none'}`). Prior windows whose skill latents lie closest to the "
-            f"target dataset's (`{dataset_repo_id}`) are retrieved, and an LSTM policy over the last "
-            f"F={self.config.history} observations learns to predict skill latents on target and retrieved windows "
-            "while the skill model is fine-tuned. At rollout the policy picks a skill every H steps and the "
-            "decoder executes it closed-loop.\n\n"
-            f"Stage of this checkpoint: `{self.config.stage}`. Retrieval file: "
-            f"`{self.config.retrieval_path or 'none'}` (retrieval {'on' if self.config.use_retrieval else 'off'}).\n"
+            "pre-trained on prior windows (stage 1); prior windows whose skill latents lie closest to the target "
+            f"dataset's are retrieved, and an LSTM policy over the last F={self.config.history} observations learns "
+            "to predict skill latents on target and retrieved windows while the skill model is fine-tuned (stage 2). "
+            f"At rollout the policy picks a skill every H={self.config.horizon} steps and the decoder executes it "
+            "closed-loop.\n\n"
         )
+        if self.config.stage == "skills":
+            method += (
+                f"This checkpoint is stage 1: skills pre-trained on the prior dataset (`{dataset_repo_id}`). Its "
+                "latent policy is untrained: train stage 2 from it (`--policy.stage=policy`) before evaluating.\n"
+            )
+        else:
+            method += (
+                f"This checkpoint is stage 2 on the target dataset (`{dataset_repo_id}`), prior dataset "
+                f"`{self.config.prior_repo_id or 'none (no prior data)'}`, retrieval file "
+                f"`{self.config.retrieval_path or 'none'}` (retrieval {'on' if self.config.use_retrieval else 'off'}).\n"
+            )
         return ModelCard(card.content + method)
 
 
