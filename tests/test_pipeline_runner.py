@@ -240,10 +240,16 @@ def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
     [  # each passed the config and failed only when its stage started, after the data and stage 1
         ("--retrieval.args={fractoin: 0.1}", r"`retrieval\.args`: skillret-retrieve has no option --fractoin"),
         ("--retrieval.args={fraction: 1.5}", r"`retrieval\.args`: .*`fraction`=1\.5"),
-        ("--policy.args={policy.horizn: 5}", r"`policy\.args` key `policy\.horizn` is no option of the skillret"),
+        ("--policy.args={policy.horizn: 5}", r"`policy\.args` key `policy\.horizn`: `policy` has no option `horizn`"),
         ("--skills.args={optimzer.lr: 0.1}", r"`skills\.args` key `optimzer\.lr` is no lerobot-train option"),
-        ("--baselines.act.args={policy.chunk_sise: 5}", r"`baselines\.act\.args` key .* of the act policy"),
+        ("--baselines.act.args={policy.chunk_sise: 5}", r"`baselines\.act\.args` key .* type\(s\) \['act'\]"),
         ("--eval.args={evl.use_async_envs: false}", r"`eval\.args` key `evl\.use_async_envs` is no lerobot-eval"),
+        ("--eval.args={env.render_strid: 5}", r"`eval\.args` key `env\.render_strid`: `env` has no option"),
+        (
+            "--eval.args={policy.horizn: 3}",
+            r"`policy` has no option `horizn` for policy type\(s\) \['act', 'skillret'\]",
+        ),
+        ("--policy.args={dataset.rooot: x}", r"`policy\.args` key `dataset\.rooot`: `dataset` has no option"),
         ("--eval.episode_length=0", r"`eval\.episode_length` must be >= 1"),
         ("--seeds=[-1]", r"seeds must be integers >= 0"),
         ("--data.seed=-3", r"seeds must be integers >= 0"),

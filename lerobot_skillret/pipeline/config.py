@@ -25,30 +25,45 @@ from lerobot_skillret.pipeline.methods import METHODS
 from lerobot_skillret.retrieval.cli import as_arguments
 
 
-def _check_option_keys(where: str, options: dict[str, Any], command: str, policy_type: str | None = None) -> None:
+def _check_option_keys(where: str, options: dict[str, Any], command: str, policy_types: Sequence[str]) -> None:
     """Refuse an `args` key that `command` has no option for, before any stage runs (the command itself would only
     refuse it when its stage starts, after the data and stage 1): its first part must be a field of the command's
-    config, and a `policy.` key's next part a field of that policy's config."""
+    config, and its second a field of that section (`dataset`, the kitchen `env`, or the config of every policy
+    type in `policy_types` the options reach)."""
+    from lerobot.configs.default import DatasetConfig
     from lerobot.configs.eval import EvalPipelineConfig
     from lerobot.configs.train import TrainPipelineConfig
 
-    command_fields = {f.name for f in fields(TrainPipelineConfig if command == "lerobot-train" else EvalPipelineConfig)}
+    from lerobot_skillret.kitchen.env_config import PandaKitchenEnv
+
+    def names(config_class: type) -> set[str]:
+        return {f.name for f in fields(config_class)}
+
+    command_fields = names(TrainPipelineConfig if command == "lerobot-train" else EvalPipelineConfig)
+    sections = {  # built on demand: the policy configs import every LeRobot policy type
+        "dataset": lambda: [DatasetConfig],
+        "env": lambda: [PandaKitchenEnv],
+        "policy": lambda: _policy_configs(policy_types),
+    }
     for key in options:
         head, _, rest = key.partition(".")
         if head not in command_fields:
             raise ValueError(f"pipeline config: `{where}` key `{key}` is no {command} option (see {command} --help).")
-        if head == "policy" and policy_type is not None and rest:
-            import lerobot.policies  # noqa: F401  (registers LeRobot's policy types)
-            from lerobot.configs.policies import PreTrainedConfig
+        option = rest.split(".")[0]
+        if option and head in sections and any(option not in names(c) | {"type", "path"} for c in sections[head]()):
+            reach = f" for policy type(s) {list(policy_types)}" if head == "policy" else ""
+            raise ValueError(
+                f"pipeline config: `{where}` key `{key}`: `{head}` has no option `{option}`{reach} (see {command} --help)."
+            )
 
-            import lerobot_skillret.policy  # noqa: F401  (registers skillret)
 
-            policy_fields = {f.name for f in fields(PreTrainedConfig.get_choice_class(policy_type))} | {"path", "type"}
-            if rest.split(".")[0] not in policy_fields:
-                raise ValueError(
-                    f"pipeline config: `{where}` key `{key}` is no option of the {policy_type} policy "
-                    f"(see lerobot-train --policy.type={policy_type} --help)."
-                )
+def _policy_configs(policy_types: Sequence[str]) -> list[type]:
+    import lerobot.policies  # noqa: F401  (registers LeRobot's policy types)
+    from lerobot.configs.policies import PreTrainedConfig
+
+    import lerobot_skillret.policy  # noqa: F401  (registers skillret)
+
+    return [PreTrainedConfig.get_choice_class(policy_type) for policy_type in policy_types]
 
 
 @dataclass
@@ -213,13 +228,14 @@ class PipelineConfig:
             as_arguments(self.retrieval.args)
         except ValueError as err:
             raise ValueError(f"pipeline config: `retrieval.args`: {err}") from None
-        _check_option_keys("eval.args", self.eval.args, "lerobot-eval")
+        evaluated = {METHODS[m].lerobot_type or "skillret" for m in self.methods}  # eval.args reach every method
+        _check_option_keys("eval.args", self.eval.args, "lerobot-eval", sorted(evaluated))
         for spec_name, spec in specs.items():
             if spec.steps < 1 or spec.save_freq < 1 or spec.batch_size < 1 or spec.num_workers < 0:
                 raise ValueError(
                     f"pipeline config: `{spec_name}` needs steps, save_freq and batch_size >= 1, num_workers >= 0."
                 )
-            _check_option_keys(f"{spec_name}.args", spec.args, "lerobot-train", policy_types[spec_name])
+            _check_option_keys(f"{spec_name}.args", spec.args, "lerobot-train", [policy_types[spec_name]])
             if spec.config_path is not None and not Path(spec.config_path).is_file():
                 raise FileNotFoundError(
                     f"pipeline config: `{spec_name}.config_path` {spec.config_path} not found (relative paths are "
