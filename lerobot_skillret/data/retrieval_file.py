@@ -32,7 +32,7 @@ from typing import Any
 
 import torch
 from safetensors import SafetensorError, safe_open
-from safetensors.torch import load_file, save_file
+from safetensors.torch import save_file
 
 from lerobot_skillret.files import write_atomic
 
@@ -90,9 +90,9 @@ class RetrievalResult:
                 "(--policy.use_retrieval=false) for the paper's 'no retrieval' ablation."
             )
         try:
-            with safe_open(str(path), framework="pt") as handle:
+            with safe_open(str(path), framework="pt") as handle:  # one read for metadata and tensors
                 metadata = handle.metadata() or {}
-            tensors = load_file(str(path))
+                tensors = {name: handle.get_tensor(name) for name in handle.keys()}  # noqa: SIM118 (safe_open is not iterable)
         except SafetensorError as error:
             raise ValueError(
                 f"Retrieval file {path} cannot be read ({error}): it is truncated or corrupt. Re-run "

@@ -30,6 +30,8 @@ def _check_option_keys(where: str, options: dict[str, Any], command: str, policy
     refuse it when its stage starts, after the data and stage 1): its first part must be a field of the command's
     config, and its second a field of that section (`dataset`, the kitchen `env`, or the config of every policy
     type in `policy_types` the options reach)."""
+    if not options:  # the usual case: no config classes to import
+        return
     from lerobot.configs.default import DatasetConfig
     from lerobot.configs.eval import EvalPipelineConfig
     from lerobot.configs.train import TrainPipelineConfig
