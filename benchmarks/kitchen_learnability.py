@@ -4,22 +4,27 @@ A comparison of methods means something only on tasks where imitation is measura
 nor by nothing. Per task this script
 1. generates the target demonstrations (`skillret-generate demos`, skipped when they exist),
 2. reports their statistics (episode lengths, saturated position actions, the gripper label set),
-3. trains a plain BC reference to a plateau on state + environment state (mean/std-normalised), MSE, AdamW with
-   cosine decay, stopped when the epoch loss has not improved by 2 % over the last 100 epochs (or at --max-epochs,
-   or at --max-train-minutes); `--reference` picks the model:
+3. trains a BC reference to a plateau on state + environment state (mean/std-normalised), AdamW with cosine
+   decay, stopped when the epoch loss has not improved by 2 % over the last 100 epochs (or at --max-epochs, or at
+   --max-train-minutes); `--reference` picks the model:
    - `mlp`: an MLP (3 x 512, LayerNorm, GELU) from the current observation to a chunk of 8 future actions, of
      which 4 run before it re-plans;
    - `rnn`: robomimic's BC-RNN, the seed's own target-only baseline (2-layer LSTM, 400 units, sequences of 10,
      batch 100), which remembers the last steps: what a chain needs to tell "just placed" from "about to grasp";
+   - `act`: LeRobot's ACT with the benchmark's own settings (`baselines.act.args` of
+     configs/pipeline/benchmark.yaml: chunks of 20, re-plans every 10, L1 + KL loss), the same network the
+     comparison trains with lerobot-train, here fed from memory instead of LeRobot's data loader (which costs
+     ~3 ms per sample) so that it can train to a plateau; `--device cuda` trains it on a GPU;
 4. rolls it out from held-out initial states (env seeds from 200,000 up: `kitchen.seeds.CALIBRATION_SEED0`, a range
    no generated dataset and no benchmark evaluation uses, so the tasks are never tuned on the states methods are
    scored on) and reports success, subtask progress and sub-goals completed in a row (per rollout too: steps taken and the goals
    left unmet, to see where it fails).
 
 It is a calibration tool for the benchmark, not one of the compared methods (those are LeRobot's policies and
-skillret, run by `skillret-pipeline`). Results land in `benchmarks/results/learnability/<task>.json` (`bc_rnn/`
-below it for the RNN) with the loss curve, one task at a time: a killed run keeps the finished tasks, and a re-run
-skips them (--force redoes them). `ladder.png` plots both references' success against the calibration goals.
+skillret, run by `skillret-pipeline`; the `act` reference measures what the benchmark's ACT reaches once trained to a
+plateau). Results land in `benchmarks/results/learnability/<task>.json` (`bc_rnn/` or `act/` below it for the
+others) with the loss curve, one task at a time: a killed run keeps the finished tasks, and a re-run skips them
+(--force redoes them). `ladder.png` plots every reference's success against the calibration goals.
 
     MUJOCO_GL=egl python benchmarks/kitchen_learnability.py --tasks bread_on_plate pan_on_stove
     python benchmarks/kitchen_learnability.py --table     # the markdown table of every stored result
@@ -38,11 +43,13 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import yaml
+from tensordict import TensorDict
 from torch import nn
 
 from lerobot_skillret.data.windows import EpisodeColumns
 from lerobot_skillret.files import write_atomic, write_json_atomic, write_text_atomic
-from lerobot_skillret.kitchen.observations import load_kitchen_meta
+from lerobot_skillret.kitchen.observations import STATE_NAMES, load_kitchen_meta
 from lerobot_skillret.kitchen.seeds import CALIBRATION_SEED0
 from lerobot_skillret.kitchen.tasks import TASKS
 
@@ -52,6 +59,7 @@ OBS_KEYS = ("observation.state", "observation.environment_state")
 CHUNK, EXECUTE = 8, 4  # the MLP's action chunk and how much of it runs before re-planning
 RNN_HORIZON = 10  # robomimic's BC-RNN sequence length (and the seed's F)
 PLATEAU_EPOCHS, PLATEAU_GAIN = 100, 0.02
+BENCHMARK_CONFIG = ROOT / "configs" / "pipeline" / "benchmark.yaml"  # the `act` reference's settings
 
 
 def demo_statistics(columns: EpisodeColumns, root: Path) -> dict:
@@ -101,8 +109,11 @@ class MLP(nn.Module):
         return self.net(obs).view(-1, CHUNK, self.action_dim)
 
     @staticmethod
-    def examples(obs: torch.Tensor, action: torch.Tensor, end: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        return obs, action[ahead(end, CHUNK)]
+    def examples(obs: torch.Tensor, action: torch.Tensor, end: torch.Tensor) -> TensorDict:
+        return TensorDict({"obs": obs, "target": action[ahead(end, CHUNK)]}, batch_size=[len(obs)])
+
+    def loss(self, batch: TensorDict) -> torch.Tensor:
+        return (self(batch["obs"]) - batch["target"]).pow(2).mean()
 
     def actor(self):
         """A stateful closure: observation (D,) -> the next action; re-plans every EXECUTE steps."""
@@ -133,9 +144,12 @@ class RNN(nn.Module):
         return self.head(self.lstm(obs)[0])
 
     @staticmethod
-    def examples(obs: torch.Tensor, action: torch.Tensor, end: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def examples(obs: torch.Tensor, action: torch.Tensor, end: torch.Tensor) -> TensorDict:
         index = ahead(end, RNN_HORIZON)
-        return obs[index], action[index]
+        return TensorDict({"obs": obs[index], "target": action[index]}, batch_size=[len(obs)])
+
+    def loss(self, batch: TensorDict) -> torch.Tensor:
+        return (self(batch["obs"]) - batch["target"]).pow(2).mean()
 
     def actor(self):
         memory: dict = {"state": None, "steps": 0}
@@ -150,31 +164,88 @@ class RNN(nn.Module):
         return act
 
 
-REFERENCES = {model.name: model for model in (MLP, RNN)}
+def act_settings() -> dict:
+    """The ACT settings the benchmark trains its `act` baseline with (`policy.*` of `baselines.act.args`)."""
+    args = yaml.safe_load(BENCHMARK_CONFIG.read_text())["baselines"]["act"]["args"]
+    return {key.removeprefix("policy."): value for key, value in args.items() if key.startswith("policy.")}
+
+
+class ACT(nn.Module):
+    """LeRobot's ACTPolicy as the reference: the benchmark's `act` network and loss (L1 on the chunk + the VAE's KL),
+    its own action queue in rollouts. Padding past an episode's end is masked (`action_is_pad`), as LeRobot's
+    data loader marks it."""
+
+    name = "act"
+
+    def __init__(self, obs_dim: int, action_dim: int) -> None:
+        from lerobot.configs.types import FeatureType, PolicyFeature
+        from lerobot.policies.act.configuration_act import ACTConfig
+        from lerobot.policies.act.modeling_act import ACTPolicy
+
+        super().__init__()
+        self.state_dim = len(STATE_NAMES)
+        config = ACTConfig(device="cpu", push_to_hub=False, **act_settings())
+        config.input_features = {
+            "observation.state": PolicyFeature(FeatureType.STATE, (self.state_dim,)),
+            "observation.environment_state": PolicyFeature(FeatureType.ENV, (obs_dim - self.state_dim,)),
+        }
+        config.output_features = {"action": PolicyFeature(FeatureType.ACTION, (action_dim,))}
+        self.policy = ACTPolicy(config)
+
+    def split(self, obs: torch.Tensor) -> dict[str, torch.Tensor]:
+        return {
+            "observation.state": obs[..., : self.state_dim],
+            "observation.environment_state": obs[..., self.state_dim :],
+        }
+
+    def examples(self, obs: torch.Tensor, action: torch.Tensor, end: torch.Tensor) -> TensorDict:
+        chunk = self.policy.config.chunk_size
+        index = ahead(end, chunk)
+        is_pad = torch.arange(len(end))[:, None] + torch.arange(chunk)[None, :] >= end[:, None]
+        fields = {**self.split(obs), "action": action[index], "action_is_pad": is_pad}
+        return TensorDict(fields, batch_size=[len(obs)])
+
+    def loss(self, batch: TensorDict) -> torch.Tensor:
+        return self.policy.forward(batch.to_dict())[0]
+
+    def actor(self):
+        self.policy.reset()
+
+        def act(x: torch.Tensor) -> np.ndarray:
+            return self.policy.select_action(self.split(x[None]))[0].numpy()
+
+        return act
+
+
+REFERENCES = {model.name: model for model in (MLP, RNN, ACT)}
 DESCRIPTIONS = {
     "mlp": f"MLP 3x512, chunk {CHUNK}, execute {EXECUTE}",
     "rnn": f"BC-RNN: LSTM 2x400 over {RNN_HORIZON} steps, hidden state reset every {RNN_HORIZON}",
+    "act": "LeRobot ACT, the benchmark's settings (chunk {chunk_size}, execute {n_action_steps}, dim {dim_model})",
 }
-LABELS = {"mlp": "MLP (current observation)", "rnn": "BC-RNN (history of 10)"}  # the ladder plot's legend
-DEFAULT_BATCH = {"mlp": 512, "rnn": 100}  # rnn: robomimic's BC-RNN batch
+LABELS = {"mlp": "MLP (current observation)", "rnn": "BC-RNN (history of 10)", "act": "LeRobot ACT (chunk 20)"}
+DEFAULT_BATCH = {"mlp": 512, "rnn": 100, "act": 128}  # rnn: robomimic's BC-RNN batch
+DEFAULT_LR = {"mlp": 1e-3, "rnn": 1e-3, "act": 1e-4}  # act: the benchmark's optimizer_lr
+RESULT_FOLDERS = {"mlp": RESULTS, "rnn": RESULTS / "bc_rnn", "act": RESULTS / "act"}
 
 
 def train(
-    model: nn.Module, obs, action, end, max_epochs: int, batch: int, lr: float, max_minutes: float
+    model: nn.Module, obs, action, end, max_epochs: int, batch: int, lr: float, max_minutes: float, device: str
 ) -> tuple[nn.Module, dict]:
-    """MSE on mean/std-normalised observations and actions, AdamW with cosine decay over `max_epochs`, until the
-    plateau rule (or the wall-time cap, recorded as `stopped_by`) stops it. The statistics are the demo frames' and
-    travel with the model (`model.stats`)."""
+    """The reference's loss on mean/std-normalised observations and actions, AdamW with cosine decay over
+    `max_epochs`, until the plateau rule (or the wall-time cap, recorded as `stopped_by`) stops it. The statistics are
+    the demo frames' and travel with the model (`model.stats`); the model comes back on the CPU for rollouts."""
     stats = {
         "obs_mean": obs.mean(0),
         "obs_std": obs.std(0).clamp_min(1e-3),
         "act_mean": action.mean(0),
         "act_std": action.std(0).clamp_min(1e-3),
     }
-    x, y = model.examples(
+    examples = model.examples(
         (obs - stats["obs_mean"]) / stats["obs_std"], (action - stats["act_mean"]) / stats["act_std"], end
-    )
-    steps_per_epoch = math.ceil(len(x) / batch)
+    ).to(device)
+    model.to(device)
+    steps_per_epoch = math.ceil(len(examples) / batch)
     optimizer = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, max_epochs * steps_per_epoch)
     curve: list[float] = []
@@ -182,16 +253,16 @@ def train(
     model.train()
     stopped_by = "max_epochs"
     for epoch in range(max_epochs):
-        order, total = torch.randperm(len(x)), 0.0
+        order, total = torch.randperm(len(examples), device=device), torch.zeros((), device=device)
         for i in range(steps_per_epoch):
             pick = order[i * batch : (i + 1) * batch]
-            loss = (model(x[pick]) - y[pick]).pow(2).mean()
+            loss = model.loss(examples[pick])
             optimizer.zero_grad()
             loss.backward()
             optimizer.step()
             schedule.step()
-            total += float(loss.detach()) * len(pick)
-        curve.append(total / len(x))
+            total += loss.detach() * len(pick)  # summed on the device: no sync per step
+        curve.append(float(total) / len(examples))
         if epoch >= 2 * PLATEAU_EPOCHS:
             before, now = min(curve[:-PLATEAU_EPOCHS]), min(curve[-PLATEAU_EPOCHS:])
             if now > before * (1 - PLATEAU_GAIN):
@@ -204,7 +275,7 @@ def train(
             print(f"  epoch {epoch:4d}  loss {curve[-1]:.2e}  {time.monotonic() - start:.0f} s", flush=True)
     model.stats = stats  # type: ignore[attr-defined]
     elapsed = round(time.monotonic() - start, 1)
-    return model.eval(), {"epochs": len(curve), "train_s": elapsed, "stopped_by": stopped_by, "loss_curve": curve}
+    return model.cpu().eval(), {"epochs": len(curve), "train_s": elapsed, "stopped_by": stopped_by, "loss_curve": curve}
 
 
 def rollout_seeds(episodes: int) -> list[int]:
@@ -268,7 +339,9 @@ def run_task(task: str, args: argparse.Namespace) -> dict:
     torch.manual_seed(args.seed)
     obs, action, end = frames(columns)
     model = REFERENCES[args.reference](obs.shape[1], action.shape[1])
-    model, training = train(model, obs, action, end, args.max_epochs, args.batch_size, args.lr, args.max_train_minutes)
+    model, training = train(
+        model, obs, action, end, args.max_epochs, args.batch_size, args.lr, args.max_train_minutes, args.device
+    )
     print(
         f"{task}: trained {training['epochs']} epochs in {training['train_s']} s ({training['stopped_by']})", flush=True
     )
@@ -280,7 +353,9 @@ def run_task(task: str, args: argparse.Namespace) -> dict:
         "task": task,
         "level": TASKS[task].level,
         "demos": stats,
-        "reference": DESCRIPTIONS[args.reference] + f", batch {args.batch_size}, lr {args.lr}, seed {args.seed}",
+        "reference": DESCRIPTIONS[args.reference].format(**act_settings())
+        + f", batch {args.batch_size}, lr {args.lr}, seed {args.seed}",
+        "device": args.device,
         **{k: v for k, v in training.items() if k != "loss_curve"},
         "final_loss": training["loss_curve"][-1],
         **curve_points(training["loss_curve"]),
@@ -332,7 +407,7 @@ def plot_curves(folder: Path) -> Path:
         r = json.loads(path.read_text())
         axis.plot(r["loss_curve_epochs"], r["loss_curve"], label=f"{r['task']} (level {r['level']})")
         title = r["reference"].split(", batch")[0]
-    axis.set(yscale="log", xlabel="epoch", ylabel="training loss (normalised MSE)", title=title)
+    axis.set(yscale="log", xlabel="epoch", ylabel="training loss (normalised; MSE, ACT: L1 + KL)", title=title)
     axis.legend(fontsize=7)
     out = folder / "loss_curves.png"
     write_atomic(out, lambda tmp: figure.savefig(tmp, dpi=110, bbox_inches="tight", format="png"))
@@ -353,12 +428,16 @@ def plot_ladder(folders: dict[str, Path], out: Path) -> Path:
     figure, axis = plt.subplots(figsize=(max(6, 0.9 * len(tasks)), 4))
     width = 0.8 / len(found)
     for i, (label, rows) in enumerate(found.items()):
+        if any(r.get("stopped_by", "plateau").startswith("wall time") for r in rows.values()):
+            label += ", stopped by a wall-time cap"  # then not converged: its bars are lower bounds
         xs = [j + (i - (len(found) - 1) / 2) * width for j, t in enumerate(tasks) if t in rows]
         axis.bar(xs, [100 * rows[t]["success"] for t in tasks if t in rows], width, label=label)
     axis.axhspan(15, 50, color="grey", alpha=0.15, label="multi-step goal: 15-50 %")
     axis.axhline(60, color="grey", linestyle="--", linewidth=1, label="single-step goal: >= 60 %")
     axis.set_xticks(range(len(tasks)), [f"{t}\n(level {TASKS[t].level})" for t in tasks], fontsize=7, rotation=30)
-    axis.set(ylabel="success (%), 50 held-out rollouts", ylim=(0, 105), title="Converged BC on 30 demos per task")
+    axis.set(
+        ylabel="success (%), 50 held-out rollouts", ylim=(0, 105), title="BC trained to a plateau on 30 demos per task"
+    )
     axis.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     write_atomic(out, lambda tmp: figure.savefig(tmp, dpi=110, bbox_inches="tight", format="png"))
     plt.close(figure)
@@ -377,13 +456,14 @@ def main() -> None:
         help="upper bound and the cosine schedule's length (published runs: 800 mlp, 100 rnn)",
     )
     parser.add_argument("--reference", choices=sorted(REFERENCES), default="mlp", help="the BC model (see above)")
-    parser.add_argument("--batch-size", type=int, help="default: 512 for mlp, 100 for rnn (robomimic's)")
-    parser.add_argument("--lr", type=float, default=1e-3, help="AdamW's initial learning rate (cosine decay)")
+    parser.add_argument("--batch-size", type=int, help=f"default: {DEFAULT_BATCH} (rnn: robomimic's)")
+    parser.add_argument("--lr", type=float, help=f"AdamW's initial learning rate (cosine decay); default: {DEFAULT_LR}")
+    parser.add_argument("--device", default="cpu", help="where the reference trains (rollouts run on the CPU)")
     parser.add_argument("--max-train-minutes", type=float, default=float("inf"), help="wall-time cap on training")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=1, help="simulation workers of the demo generator")
     parser.add_argument("--data-dir", type=Path, default=ROOT / "outputs" / "learnability")
-    parser.add_argument("--results", type=Path, help=f"default: {RESULTS} for mlp, its bc_rnn/ for rnn")
+    parser.add_argument("--results", type=Path, help=f"default: {RESULTS} for mlp, its bc_rnn/ or act/ for the others")
     parser.add_argument("--force", action="store_true", help="redo tasks that already have a result")
     parser.add_argument(
         "--table",
@@ -392,7 +472,8 @@ def main() -> None:
     )
     args = parser.parse_args()
     args.batch_size = args.batch_size or DEFAULT_BATCH[args.reference]
-    args.results = args.results or (RESULTS if args.reference == "mlp" else RESULTS / "bc_rnn")
+    args.lr = args.lr or DEFAULT_LR[args.reference]
+    args.results = args.results or RESULT_FOLDERS[args.reference]
     unknown = [t for t in args.tasks if t not in TASKS]
     if unknown:
         parser.error(f"unknown tasks {unknown}; choose from {sorted(TASKS)}")
@@ -413,8 +494,9 @@ def main() -> None:
     write_text_atomic(args.results / "results.md", markdown)
     print(markdown)
     print(f"loss curves: {plot_curves(args.results)}")
-    if args.results.resolve() in (RESULTS, RESULTS / "bc_rnn"):  # the published results: both references in one plot
-        folders, ladder = {LABELS["mlp"]: RESULTS, LABELS["rnn"]: RESULTS / "bc_rnn"}, RESULTS / "ladder.png"
+    if args.results.resolve() in RESULT_FOLDERS.values():  # the published results: every reference in one plot
+        folders = {LABELS[name]: folder for name, folder in RESULT_FOLDERS.items() if any(folder.glob("*.json"))}
+        ladder = RESULTS / "ladder.png"
     else:  # results kept elsewhere never overwrite the published plot
         folders, ladder = {LABELS[args.reference]: args.results}, args.results / "ladder.png"
     print(f"success per task and reference: {plot_ladder(folders, ladder)}")

@@ -10,6 +10,8 @@ stage-1 throughput (windows per second on one core) of today's float32 step agai
 autocast, as lerobot-train's Accelerator runs it) at batch 64 and 128, the settings timed in alternation in one run.
 
 Run: `.venv/bin/python benchmarks/policy_speed.py` (~2-4 min on 2 cores; `--skip-paper` for ~1 min).
+On a GPU, `--device cuda` times the training steps of both configs there instead (float32 and bf16 autocast, the
+configs' batches and larger ones, as windows per second), the numbers to size a GPU run by.
 """
 
 from __future__ import annotations
@@ -50,6 +52,7 @@ def _parse() -> argparse.Namespace:
     parser.add_argument("--skip-paper", action="store_true", help="skip the GPU-scale paper config (slow on CPU)")
     parser.add_argument("--act-steps", type=int, default=300, help="select_action steps timed per policy")
     parser.add_argument("--rounds", type=int, default=5, help="alternating rounds of the stage-1 throughput settings")
+    parser.add_argument("--device", default="cpu", help="cpu (all sections) or cuda (training steps on the GPU)")
     return parser.parse_args()
 
 
@@ -60,13 +63,13 @@ def policy_fields(name: str) -> dict:
     return {k: tuple(v) if isinstance(v, list) else v for k, v in fields.items()}
 
 
-def make_policy(fields: dict, root: Path, repo_id: str, **overrides) -> SkillRetPolicy:
-    config = SkillRetConfig(**{**fields, **overrides, "device": "cpu", "push_to_hub": False})
+def make_policy(fields: dict, root: Path, repo_id: str, device: str = "cpu", **overrides) -> SkillRetPolicy:
+    config = SkillRetConfig(**{**fields, **overrides, "device": device, "push_to_hub": False})
     meta = LeRobotDatasetMetadata(repo_id, root=root)
     features = dataset_to_policy_features(meta.features)
     config.output_features = {k: f for k, f in features.items() if f.type is FeatureType.ACTION}
     config.input_features = {k: f for k, f in features.items() if k not in config.output_features}
-    return SkillRetPolicy(config, dataset_stats=meta.stats, dataset_meta=meta)
+    return SkillRetPolicy(config, dataset_stats=meta.stats, dataset_meta=meta).to(device)
 
 
 def batches(policy: SkillRetPolicy, root: Path, repo_id: str, batch_size: int, count: int) -> list[dict]:
@@ -76,12 +79,15 @@ def batches(policy: SkillRetPolicy, root: Path, repo_id: str, batch_size: int, c
         deltas = {k: [i / fps for i in config.observation_delta_indices] for k in config.input_features}
         deltas["action"] = [i / fps for i in config.action_delta_indices]
     loader = torch.utils.data.DataLoader(
-        LeRobotDataset(repo_id, root=root, delta_timestamps=deltas), batch_size=batch_size, shuffle=True
+        LeRobotDataset(repo_id, root=root, delta_timestamps=deltas), batch_size=batch_size, shuffle=True, drop_last=True
     )
+    if len(loader) == 0:
+        raise ValueError(f"batch {batch_size} is larger than {root}'s {len(loader.dataset)} frames")
     out: list[dict] = []
     while len(out) < count:
         out.extend(batch for batch, _ in zip(loader, range(count - len(out)), strict=False))
-    return out
+    device = config.device  # where lerobot-train's preprocessor would put the batch
+    return [{k: v.to(device) if isinstance(v, torch.Tensor) else v for k, v in batch.items()} for batch in out]
 
 
 def time_training(policy: SkillRetPolicy, data: list[dict], warmup: int = 2, amp: bool = False) -> float:
@@ -89,14 +95,18 @@ def time_training(policy: SkillRetPolicy, data: list[dict], warmup: int = 2, amp
     runs it with `--policy.use_amp=true` on CPU)."""
     optimizer = torch.optim.Adam(policy.get_optim_params())
     policy.train()
+    device = torch.device(policy.config.device)
+    sync = torch.cuda.synchronize if device.type == "cuda" else lambda: None
     times = []
     for i, batch in enumerate(data):
+        sync()
         start = time.perf_counter()
-        with torch.autocast("cpu", dtype=torch.bfloat16, enabled=amp):
+        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
             loss, _ = policy.forward(batch)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
+        sync()
         if i >= warmup:
             times.append(time.perf_counter() - start)
     return statistics.median(times)
@@ -229,7 +239,7 @@ def time_select_action(policy, observations: list[dict]) -> float:
     return (time.perf_counter() - start) / len(observations)
 
 
-def stage2_policy(fields: dict, prior: Path, target: Path, work: Path) -> SkillRetPolicy:
+def stage2_policy(fields: dict, prior: Path, target: Path, work: Path, device: str = "cpu") -> SkillRetPolicy:
     """Stage 2 with prior fine-tuning and retrieval of 10% of the prior frames (random anchors here)."""
     stage1 = make_policy(fields, prior, "bench/prior")
     folder = work / f"stage1-{len(list(work.iterdir()))}"
@@ -248,6 +258,7 @@ def stage2_policy(fields: dict, prior: Path, target: Path, work: Path) -> SkillR
         fields,
         target,
         "bench/target",
+        device,
         stage="policy",
         prior_repo_id="bench/prior",
         prior_root=str(prior),
@@ -258,6 +269,27 @@ def stage2_policy(fields: dict, prior: Path, target: Path, work: Path) -> SkillR
     return policy
 
 
+def gpu_steps(prior: Path, target: Path, work: Path, device: str, skip_paper: bool) -> None:
+    """Training steps of both configs on a GPU: ms per step and windows per second, float32 and bf16 autocast,
+    at the config's batch and larger ones (on a GPU a bigger batch is nearly free until the device fills)."""
+    print(f"device: {torch.cuda.get_device_name(device)}")
+    print("\n== training step on the GPU (forward + backward + Adam; median of 10 after 3 warm-up steps) ==")
+    for name in ("cpu", *(() if skip_paper else ("paper",))):
+        fields = policy_fields(name)
+        for batch_size in (16, 64, 256, 1024):
+            one = make_policy(fields, prior, "bench/prior", device)
+            two = stage2_policy(fields, prior, target, work, device)
+            data1 = batches(one, prior, "bench/prior", batch_size, 13)
+            data2 = batches(two, target, "bench/target", batch_size, 13)
+            for amp in (False, True):
+                t1, t2 = time_training(one, data1, 3, amp), time_training(two, data2, 3, amp)
+                print(
+                    f"{name:>6} config, batch {batch_size:4d}, {'bf16' if amp else 'fp32'}: stage 1 {1e3 * t1:7.1f} "
+                    f"ms/step ({batch_size / t1:7.0f} windows/s)   stage 2 {1e3 * t2:7.1f} ms/step",
+                    flush=True,
+                )
+
+
 def main() -> None:
     args = _parse()
     torch.set_num_threads(args.threads)
@@ -266,11 +298,20 @@ def main() -> None:
         work = Path(tmp)
         dims = dict(state_dim=STATE_DIM, env_dim=ENV_DIM, action_dim=ACTION_DIM)
         prior = make_synthetic_dataset(work / "prior", "bench/prior", num_episodes=8, min_len=150, max_len=250, **dims)
-        target = make_synthetic_dataset(
-            work / "target", "bench/target", num_episodes=4, min_len=150, max_len=250, seed=1, **dims
+        target = make_synthetic_dataset(  # 8 episodes on a GPU: its largest batch (1,024) needs that many frames
+            work / "target",
+            "bench/target",
+            num_episodes=4 if args.device == "cpu" else 8,
+            min_len=150,
+            max_len=250,
+            seed=1,
+            **dims,
         )
         (work / "ckpt").mkdir()
         print(f"torch threads: {torch.get_num_threads()}; obs: state {STATE_DIM} + env {ENV_DIM}, action {ACTION_DIM}")
+        if args.device != "cpu":
+            gpu_steps(prior, target, work / "ckpt", args.device, args.skip_paper)
+            return
         print("\n== training step (forward + backward + Adam; median) ==")
         for name in ("cpu", *(() if args.skip_paper else ("paper",))):
             fields = policy_fields(name)

@@ -69,3 +69,34 @@ def test_table_rebuilds_the_stored_results_markdown(tmp_path: Path):
     )
     markdown = (tmp_path / "results.md").read_text()
     assert "| light_on |" in markdown and "stale" not in markdown
+
+
+def test_act_reference_uses_the_benchmark_settings_and_masks_padding():
+    """LeRobot's ACT as the reference: the benchmark's `act` network (chunk from benchmark.yaml), the state split off
+    the front of the observation, and chunk steps past an episode's end marked as padding, as LeRobot's loader does."""
+    kl = _load()
+    model = kl.ACT(obs_dim=12, action_dim=3)
+    chunk = model.policy.config.chunk_size
+    assert chunk == kl.act_settings()["chunk_size"] == 20
+    end = torch.tensor([3, 3, 3, 25, 25] + [25] * 20)  # episodes: frames 0-2 and 3-24
+    obs, action = torch.randn(len(end), 12), torch.randn(len(end), 3)
+    batch = model.examples(obs, action, end)
+    assert batch["observation.state"].shape == (len(end), len(kl.STATE_NAMES))
+    assert batch["observation.environment_state"].shape == (len(end), 12 - len(kl.STATE_NAMES))
+    assert batch["action_is_pad"][0].tolist() == [False] * 3 + [True] * (chunk - 3)
+    assert batch["action_is_pad"][3].tolist() == [False] * chunk  # 22 frames left: a full chunk
+    assert batch["action_is_pad"][5].tolist() == [False] * 20  # frames 5-24
+    torch.testing.assert_close(batch["action"][1, :2], action[1:3])
+
+
+def test_every_reference_trains_through_the_shared_loop():
+    """One loop for MLP, BC-RNN and ACT: a few epochs on a tiny episode lower each one's loss."""
+    kl = _load()
+    torch.manual_seed(0)
+    end = torch.tensor([40] * 40 + [80] * 40)
+    obs = torch.randn(80, 12)
+    action = torch.tanh(obs[:, :3] + obs[:, 9:12])  # learnable from the current observation
+    for name, model in (("mlp", kl.MLP(12, 3, width=32)), ("rnn", kl.RNN(12, 3, width=32)), ("act", kl.ACT(12, 3))):
+        _, training = kl.train(model, obs, action, end, 30, 16, kl.DEFAULT_LR[name] * 3, float("inf"), "cpu")
+        curve = training["loss_curve"]
+        assert curve[-1] < 0.8 * curve[0], (name, curve[0], curve[-1])
