@@ -11,21 +11,24 @@ Examples:
   skillret-retrieve ... --metric kl                # appendix A.2: symmetric KL between the encoder Gaussians
 
 Unset options take the checkpoint config's values (retrieval_fraction, retrieval_metric, retrieval_num_prior,
-retrieval_num_target), which default to the paper's r=10%, L2, N=250,000, M=2,500.
+retrieval_num_target), whose defaults (the paper's) are shown with each option above.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import sys
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
 from lerobot_skillret.retrieval.settings import ABLATIONS, EVERY_WINDOW, METRICS, MODES, RetrievalSettings, ablation
 
 DEFAULTS = RetrievalSettings()  # execution defaults shown in --help
+CONFIG_DEFAULTS = {f.name: f.default for f in dataclasses.fields(SkillRetConfig)}  # the paper's, shown in --help
 
 
 def _num_prior(text: str) -> int | str:
@@ -73,14 +76,27 @@ def build_parser() -> argparse.ArgumentParser:
         "(default: nearest, the method)",
     )
     paper.add_argument("--mode", choices=MODES, help="nearest (the method), random, all or none")
-    paper.add_argument("--fraction", type=float, help="r: share of candidates retrieved, in (0, 1] (paper 0.1)")
-    paper.add_argument("--metric", choices=METRICS, help="l2 on encoder means, or symmetric KL (A.2)")
+    paper.add_argument(
+        "--fraction",
+        type=float,
+        help=f"r: share of candidates retrieved, in (0, 1] (config default {CONFIG_DEFAULTS['retrieval_fraction']})",
+    )
+    paper.add_argument(
+        "--metric",
+        choices=METRICS,
+        help=f"l2 on encoder means, or symmetric KL (A.2) (config default {CONFIG_DEFAULTS['retrieval_metric']})",
+    )
     paper.add_argument(
         "--num-prior",
         type=_num_prior,
-        help=f"N candidate windows drawn from the prior, or '{EVERY_WINDOW}' (paper 250000)",
+        help=f"N candidate windows drawn from the prior, or '{EVERY_WINDOW}' "
+        f"(config default {CONFIG_DEFAULTS['retrieval_num_prior']:,})",
     )
-    paper.add_argument("--num-target", type=int, help="M target windows encoded (paper 2500)")
+    paper.add_argument(
+        "--num-target",
+        type=int,
+        help=f"M target windows encoded (config default {CONFIG_DEFAULTS['retrieval_num_target']:,})",
+    )
     paper.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
 
     run = parser.add_argument_group("execution")
