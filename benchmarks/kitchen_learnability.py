@@ -92,6 +92,11 @@ def ahead(end: torch.Tensor, length: int) -> torch.Tensor:
     return torch.minimum(index, end[:, None] - 1)
 
 
+def mse(model: nn.Module, batch: TensorDict) -> torch.Tensor:
+    """The MLP's and BC-RNN's loss: MSE between the predicted and the demonstrated (normalised) actions."""
+    return (model(batch["obs"]) - batch["target"]).pow(2).mean()
+
+
 class MLP(nn.Module):
     """The MLP reference: current observation -> a chunk of CHUNK future actions; executes EXECUTE of them."""
 
@@ -112,8 +117,7 @@ class MLP(nn.Module):
     def examples(obs: torch.Tensor, action: torch.Tensor, end: torch.Tensor) -> TensorDict:
         return TensorDict({"obs": obs, "target": action[ahead(end, CHUNK)]}, batch_size=[len(obs)])
 
-    def loss(self, batch: TensorDict) -> torch.Tensor:
-        return (self(batch["obs"]) - batch["target"]).pow(2).mean()
+    loss = mse
 
     def actor(self):
         """A stateful closure: observation (D,) -> the next action; re-plans every EXECUTE steps."""
@@ -148,8 +152,7 @@ class RNN(nn.Module):
         index = ahead(end, RNN_HORIZON)
         return TensorDict({"obs": obs[index], "target": action[index]}, batch_size=[len(obs)])
 
-    def loss(self, batch: TensorDict) -> torch.Tensor:
-        return (self(batch["obs"]) - batch["target"]).pow(2).mean()
+    loss = mse
 
     def actor(self):
         memory: dict = {"state": None, "steps": 0}
