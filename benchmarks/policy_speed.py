@@ -272,7 +272,7 @@ def stage2_policy(fields: dict, prior: Path, target: Path, work: Path, device: s
 def gpu_steps(prior: Path, target: Path, work: Path, device: str, skip_paper: bool) -> None:
     """Training steps of both configs on a GPU: ms per step and windows per second, float32 and bf16 autocast,
     at the config's batch and larger ones (on a GPU a bigger batch is nearly free until the device fills)."""
-    print(f"device: {torch.cuda.get_device_name(device)}")
+    print(f"device: {torch.cuda.get_device_name(device) if device.startswith('cuda') else device}")
     print("\n== training step on the GPU (forward + backward + Adam; median of 10 after 3 warm-up steps) ==")
     for name in ("cpu", *(() if skip_paper else ("paper",))):
         fields = policy_fields(name)
