@@ -199,6 +199,78 @@ def test_killed_run_leaves_no_artifact_and_reruns_cleanly(tmp_path: Path) -> Non
     assert sorted(p.name for p in slow.output.iterdir()) == ["a.txt", "b.txt"] and not slow.partial.exists()
 
 
+def test_sigterm_stops_the_stages_in_flight_with_the_run(tmp_path: Path) -> None:
+    """`kill <pipeline>` (SIGTERM) used to end the pipeline alone: its stage commands ran on, orphaned. Now they are
+    terminated with it, and their stage is left for the next run to redo."""
+    pid_file = tmp_path / "child.pid"
+    slow = Stage("slow", tmp_path / "out" / "slow")
+    slow.command = [
+        sys.executable,
+        "-c",
+        f"import os, pathlib, time; pathlib.Path({str(pid_file)!r}).write_text(str(os.getpid())); time.sleep(120)",
+    ]
+    import pickle
+
+    (tmp_path / "stage.pkl").write_bytes(pickle.dumps(slow))
+    script = tmp_path / "drive.py"
+    script.write_text(
+        textwrap.dedent(f"""
+        import pickle
+        from concurrent.futures import ThreadPoolExecutor
+        from pathlib import Path
+        from lerobot_skillret.pipeline.stages import StageRunner
+        runner = StageRunner(Path({str(tmp_path / "out")!r}))
+        runner.stop_on_sigterm()
+        with ThreadPoolExecutor(1) as pool:  # as run_jobs runs stages: in a worker thread
+            pool.submit(runner.run, pickle.loads(Path({str(tmp_path / "stage.pkl")!r}).read_bytes())).result()
+    """)
+    )
+    proc = subprocess.Popen([sys.executable, str(script)], start_new_session=True, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not pid_file.exists() or not pid_file.read_text():
+        assert time.monotonic() < deadline and proc.poll() is None, "the stage never started"
+        time.sleep(0.1)
+    child = int(pid_file.read_text())
+    proc.send_signal(signal.SIGTERM)  # the pipeline's process only, as `kill` sends it
+    try:
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    deadline = time.monotonic() + 10
+    while _alive(child) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    alive = _alive(child)
+    if alive:
+        os.kill(child, signal.SIGKILL)
+    assert not alive, "the stage command outlived the pipeline"
+    assert proc.returncode != 0 and not slow.output.exists()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    status = Path(f"/proc/{pid}/stat")
+    return not (status.exists() and status.read_text().split(") ")[-1].startswith("Z"))  # a zombie is gone
+
+
+def test_pipeline_stop_is_one_line(monkeypatch, capsys) -> None:
+    """Ctrl-C or SIGTERM: one line saying finished stages are kept, exit code 130 (was a KeyboardInterrupt trace)."""
+    from lerobot_skillret.pipeline import run as run_module
+
+    def interrupted(cfg):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(run_module, "run", interrupted)
+    config = Path(__file__).resolve().parents[1] / "configs" / "pipeline" / "smoke.yaml"
+    with pytest.raises(SystemExit) as exit_info:
+        run_module.main(["run", "--config", str(config)])
+    assert exit_info.value.code == 130
+    assert "stopped; finished stages are kept" in capsys.readouterr().err
+
+
 def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
     path = tmp_path / "p.yaml"
     path.write_text("tasks: [cook]\nevall: {n_episodes: 3}\n")

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -92,7 +93,10 @@ def run_cell(plan: Plan, runner: StageRunner, cell: Cell, results_dir: Path | No
 
 def _runner(cfg: PipelineConfig, plan: Plan) -> StageRunner:
     env = {"HF_HUB_OFFLINE": "1", "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-    return StageRunner(plan.root, env=env | ({"OMP_NUM_THREADS": str(cfg.threads)} if cfg.threads else {}))
+    runner = StageRunner(plan.root, env=env | ({"OMP_NUM_THREADS": str(cfg.threads)} if cfg.threads else {}))
+    if threading.current_thread() is threading.main_thread():
+        runner.stop_on_sigterm()
+    return runner
 
 
 def _results_dir(cfg: PipelineConfig) -> Path | None:
@@ -138,8 +142,8 @@ def run_jobs(plan: Plan, runner: StageRunner, results_dir: Path | None, jobs: in
     """Shared stages first, then every cell, `jobs` at a time. Cells that need no shared stage (LeRobot baselines)
     are queued before the others, so with more jobs than shared stages they run while stage 1 trains.
 
-    The first failure (or Ctrl-C) is logged at once and sets `runner.cancel`: no further stage starts, stages in
-    flight finish, and the first error is raised.
+    The first failure is logged at once and sets `runner.cancel`: no further stage starts, stages in flight finish,
+    and the first error is raised. Ctrl-C or SIGTERM stops the stages in flight too.
     """
     cells = sorted(plan.cells(), key=lambda c: (c.seed, bool(prerequisites(plan, c))))
     shared = {stage.name: stage for cell in cells for stage in prerequisites(plan, cell)}
@@ -164,7 +168,7 @@ def run_jobs(plan: Plan, runner: StageRunner, results_dir: Path | None, jobs: in
     ]
     try:
         errors = [f.exception() for f in as_completed(futures)]
-    except BaseException:  # Ctrl-C while waiting: the stages in flight get SIGINT with the whole process group
+    except BaseException:  # Ctrl-C (SIGINT reaches the stages with the process group) or SIGTERM (`stop_on_sigterm`)
         runner.cancel.set()
         raise
     finally:
@@ -222,6 +226,8 @@ def main(argv: list[str] | None = None) -> None:
             (run if args.command == "run" else heldout)(cfg)
         except (FileNotFoundError, ValueError, RuntimeError) as err:
             parser.exit(2, f"skillret-pipeline: {err}\n")
+        except KeyboardInterrupt:
+            parser.exit(130, "skillret-pipeline: stopped; finished stages are kept: run the same command to go on\n")
     else:
         if not args.results.is_dir():
             parser.exit(2, f"skillret-pipeline: {args.results} does not exist: no finished cells yet.\n")

@@ -14,6 +14,7 @@ import fcntl
 import logging
 import os
 import shutil
+import signal
 import subprocess
 import threading
 import time
@@ -99,8 +100,8 @@ class StageRunner:
     """Runs stages with logs under `<output_dir>/logs/` and wall times in `<output_dir>/timings.json`.
 
     Thread-safe: jobs of one pipeline run share a runner. A failed stage sets `cancel` before releasing its lock;
-    once it is set (a stage or job failed, or Ctrl-C) no further stage starts, so a failure is never retried by a
-    job that was waiting for the same stage.
+    once it is set (a stage or job failed, Ctrl-C, SIGTERM) no further stage starts, so a failure is never retried by
+    a job that was waiting for the same stage.
     """
 
     def __init__(self, output_dir: Path, env: dict[str, str] | None = None) -> None:
@@ -110,6 +111,26 @@ class StageRunner:
         self.commands_path = output_dir / "commands.json"  # the command that built each finished stage
         self.env = {**os.environ, **(env or {})}
         self.cancel = threading.Event()
+        self._running: set[subprocess.Popen] = set()  # stage commands in flight, for `terminate`
+        self._running_lock = threading.RLock()  # re-entered when SIGTERM lands while the main thread holds it
+
+    def terminate(self) -> None:
+        """Start no further stage and stop the commands in flight (SIGTERM); the next run redoes their stages."""
+        self.cancel.set()
+        with self._running_lock:
+            for child in self._running:
+                child.terminate()
+
+    def stop_on_sigterm(self) -> None:
+        """Make SIGTERM (`kill`, `timeout`, a job scheduler) stop the run as Ctrl-C does. Without it the pipeline
+        died alone and its stage commands ran on, orphaned, for hours (their work thrown away by the next run).
+        Main thread only (Python delivers signals there)."""
+
+        def handler(signum: int, frame: object) -> None:
+            self.terminate()
+            raise KeyboardInterrupt
+
+        signal.signal(signal.SIGTERM, handler)
 
     def log_path(self, stage: Stage) -> Path:
         """Where the stage's command writes its stdout and stderr."""
@@ -166,10 +187,21 @@ class StageRunner:
             handle.write("$ " + " ".join(stage.command) + "\n")
             handle.flush()
             # the child inherits the lock, so a killed pipeline cannot free it while the child still writes
-            code = subprocess.run(
+            with subprocess.Popen(
                 stage.command, stdout=handle, stderr=subprocess.STDOUT, env=self.env, pass_fds=(lock_fd,)
-            ).returncode
+            ) as child:
+                with self._running_lock:
+                    self._running.add(child)
+                if self.cancel.is_set():  # terminated between the check above and the start
+                    child.terminate()
+                try:
+                    code = child.wait()
+                finally:
+                    with self._running_lock:
+                        self._running.discard(child)
         seconds = time.monotonic() - start
+        if code != 0 and self.cancel.is_set():
+            raise Cancelled(f"stage {stage.name} stopped: the run was interrupted (the next run redoes it)")
         if code != 0 or not stage.partial.exists():
             tail = "".join(log_path.read_text().splitlines(keepends=True)[-25:])
             why = f"exit code {code}" if code != 0 else f"it did not write {stage.partial}"
