@@ -113,11 +113,13 @@ class StageRunner:
         self.cancel = threading.Event()
         self._running: set[subprocess.Popen] = set()  # stage commands in flight, for `terminate`
         self._running_lock = threading.RLock()  # re-entered when SIGTERM lands while the main thread holds it
+        self._terminated = False  # set by `terminate` only (a failed job also sets `cancel`, but stops nothing)
 
     def terminate(self) -> None:
         """Start no further stage and stop the commands in flight (SIGTERM); the next run redoes their stages."""
         self.cancel.set()
         with self._running_lock:
+            self._terminated = True
             for child in self._running:
                 child.terminate()
 
@@ -192,15 +194,15 @@ class StageRunner:
             ) as child:
                 with self._running_lock:
                     self._running.add(child)
-                if self.cancel.is_set():  # terminated between the check above and the start
-                    child.terminate()
+                    if self._terminated:  # terminated between the check above and the start
+                        child.terminate()
                 try:
                     code = child.wait()
                 finally:
                     with self._running_lock:
                         self._running.discard(child)
         seconds = time.monotonic() - start
-        if code != 0 and self.cancel.is_set():
+        if code != 0 and self._terminated:
             raise Cancelled(f"stage {stage.name} stopped: the run was interrupted (the next run redoes it)")
         if code != 0 or not stage.partial.exists():
             tail = "".join(log_path.read_text().splitlines(keepends=True)[-25:])
