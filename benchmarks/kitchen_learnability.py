@@ -226,7 +226,11 @@ DESCRIPTIONS = {
     "rnn": f"BC-RNN: LSTM 2x400 over {RNN_HORIZON} steps, hidden state reset every {RNN_HORIZON}",
     "act": "LeRobot ACT, the benchmark's settings (chunk {chunk_size}, execute {n_action_steps}, dim {dim_model})",
 }
-LABELS = {"mlp": "MLP (current observation)", "rnn": "BC-RNN (history of 10)", "act": "LeRobot ACT (chunk 20)"}
+LABELS = {
+    "mlp": "MLP (current observation)",
+    "rnn": "BC-RNN (history of 10)",
+    "act": "LeRobot ACT (benchmark settings)",
+}
 DEFAULT_BATCH = {"mlp": 512, "rnn": 100, "act": 128}  # rnn: robomimic's BC-RNN batch
 DEFAULT_LR = {"mlp": 1e-3, "rnn": 1e-3, "act": 1e-4}  # act: the benchmark's optimizer_lr
 RESULT_FOLDERS = {"mlp": RESULTS, "rnn": RESULTS / "bc_rnn", "act": RESULTS / "act"}
