@@ -1,7 +1,9 @@
 """`SkillRetPolicy`: the skill VAE and the latent policy as one LeRobot policy, trained in two `lerobot-train` runs.
 
-Stage `skills` (Algorithm 1): `--dataset.*` is the prior (play) dataset; each batch's windows train the skill VAE
-and the policy fetches each window's temporal pair itself. The latent policy is frozen.
+Stage `skills` (Algorithm 1): `--dataset.*` is the prior (play) dataset. A batch of B windows trains the skill VAE
+as B/2 temporal pairs: the first half of the batch's windows and each one's pair, which the policy fetches itself
+(same episode, d steps away). Every window is encoded for the temporal term anyway, so each is also reconstructed:
+1.5x the windows per second of training B windows and B encoder-only pairs. The latent policy is frozen.
 Stage `policy` (Algorithm 2): `--policy.path=<stage-1 pretrained_model>`, `--dataset.*` is the target dataset.
 One forward computes the latent-policy loss on target windows (id 0) and on retrieved prior windows (id 1, read from
 `retrieval_path`), plus the skill loss on target and prior windows (fine-tuning, line 17).
@@ -41,6 +43,13 @@ if TYPE_CHECKING:
     from lerobot_skillret.policy.window_source import WindowSource
 
 Batch = Mapping[str, Tensor]
+
+
+def first_half(batch: Batch) -> Batch:
+    """The first ceil(B/2) windows of a batch (tensors and per-sample lists alike): a stage-1 step's anchors, whose
+    temporal pairs make up the other half of its B windows."""
+    size = (len(batch["index"].reshape(-1)) + 1) // 2
+    return {key: value[:size] if isinstance(value, Tensor | list) else value for key, value in batch.items()}
 
 
 class SkillRetPolicy(PreTrainedPolicy):
@@ -198,7 +207,7 @@ class SkillRetPolicy(PreTrainedPolicy):
         if self.config.fast_windows:  # LeRobot gave anchor frames only: gather their windows (same pads)
             batch = data.own.gather(batch["index"].reshape(-1), self._device())
         if self.config.stage == "skills":
-            loss, terms, _ = self._skill_loss([(batch, data.own)])
+            loss, terms, _ = self._skill_loss([(first_half(batch), data.own)], decode_pairs=True)
             return loss, {name: float(value) for name, value in terms.items()}
         return self._stage2_loss(batch, data)
 
@@ -213,11 +222,14 @@ class SkillRetPolicy(PreTrainedPolicy):
             self._training_data.check_ranks(anchors)
         return self._training_data
 
-    def _skill_loss(self, sources: list[tuple[Batch, "WindowSource"]]) -> tuple[Tensor, dict[str, Tensor], Tensor]:
+    def _skill_loss(
+        self, sources: list[tuple[Batch, "WindowSource"]], decode_pairs: bool = False
+    ) -> tuple[Tensor, dict[str, Tensor], Tensor]:
         """Algorithm 1's loss over the windows of several (raw batch, its WindowSource) pairs at once.
 
-        Each source supplies the temporal pair of its own windows (same episode). Returns the loss, its detached
-        terms, and the encoder means of all windows (in order), used as stage-2 labels."""
+        Each source supplies the temporal pair of its own windows (same episode); `decode_pairs` trains the pairs
+        as windows too (`SkillModel.loss`). Returns the loss, its detached terms, and the encoder means of the
+        sources' windows (in order, pairs excluded), used as stage-2 labels."""
         config, device = self.config, self._device()
         windows, pairs, offsets, slow = [], [], [], []
         for raw, source in sources:
@@ -233,7 +245,9 @@ class SkillRetPolicy(PreTrainedPolicy):
         def join(parts: list[dict[str, Tensor]]) -> dict[str, Tensor] | None:
             return {key: torch.cat([p[key] for p in parts]) for key in parts[0]} if parts else None
 
-        loss, terms, means = self.skills.loss(join(windows), join(pairs), torch.cat(offsets), join(slow))
+        loss, terms, means = self.skills.loss(
+            join(windows), join(pairs), torch.cat(offsets), join(slow), decode_pairs=decode_pairs
+        )
         return loss, {name: value.detach() for name, value in terms.items()}, means
 
     def _stage2_loss(self, batch: Batch, data: "TrainingData") -> tuple[Tensor, dict[str, float]]:

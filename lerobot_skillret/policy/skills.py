@@ -166,29 +166,32 @@ class SkillModel(nn.Module):
         pair: Window | None = None,
         offset: Tensor | None = None,
         slow_pair: Window | None = None,
+        decode_pairs: bool = False,
     ) -> tuple[Tensor, dict[str, Tensor], Tensor]:
         """L_skill = ||a_hat - a||^2 + beta KL(q || prior) + alpha (d_hat - d)^2 (+ the optional extras).
 
         `pair` is the window shifted by `offset` (B,) raw steps in the same episode (Algorithm 1, line 3);
         `slow_pair` a window within +-slowness_max_offset steps (implementation-only slowness term).
+        `decode_pairs`: the pairs are trained windows too (reconstruction and KL), not only the temporal term's
+        second input. They are encoded either way, so this trains twice the windows for a third more compute.
         Reconstruction: squared error summed over action dimensions, averaged over valid steps only.
         Returns the loss, its terms, and the encoder means of `window` (B, latent).
         """
         config = self.config
         batch = window["action"].shape[0]
         extra = [w for w in (pair, slow_pair) if w is not None]
-        if extra:  # one encoder pass over all windows
-            joined = {key: torch.cat([window[key], *(w[key] for w in extra)]) for key in window}
-            means, log_vars = self.encoder(joined)
-        else:
-            means, log_vars = self.encoder(window)
-        mean, log_var = means[:batch], log_vars[:batch]
+        # one encoder pass over all windows
+        joined = {key: torch.cat([window[key], *(w[key] for w in extra)]) for key in window} if extra else window
+        means, log_vars = self.encoder(joined)
+        trained = 2 * batch if decode_pairs and pair is not None else batch
+        decoded = {key: value[:trained] for key, value in joined.items()}
+        mean, log_var = means[:trained], log_vars[:trained]
 
         z = mean + torch.randn_like(mean) * torch.exp(0.5 * log_var) if self.training else mean
-        squared, valid = self.action_error(z, window)
+        squared, valid = self.action_error(z, decoded)
         reconstruction = (squared * valid).sum() / valid.sum().clamp_min(1.0)
 
-        prior_mean, prior_log_var = self.prior(window)
+        prior_mean, prior_log_var = self.prior(decoded)
         kl = gaussian_kl(mean, log_var, prior_mean, prior_log_var).mean()
         total = reconstruction + config.kl_weight * kl
         terms = {"reconstruction_loss": reconstruction, "kl_loss": kl}
@@ -197,19 +200,19 @@ class SkillModel(nn.Module):
             if offset is None:
                 raise ValueError("SkillModel.loss: a temporal pair needs its offset d.")
             pair_mean = means[batch : 2 * batch]
-            predicted = self.temporal(torch.cat([mean, pair_mean], dim=-1)).float().squeeze(-1)
+            predicted = self.temporal(torch.cat([means[:batch], pair_mean], dim=-1)).float().squeeze(-1)
             tc = (predicted - offset.to(predicted.dtype)).pow(2).mean()
             total = total + config.tc_weight * tc
             terms["tc_loss"] = tc
         if slow_pair is not None:
             slow_mean = means[-batch:]
-            slowness = (mean - slow_mean).pow(2).sum(dim=-1).mean()
+            slowness = (means[:batch] - slow_mean).pow(2).sum(dim=-1).mean()
             total = total + config.slowness_weight * slowness
             terms["slowness_loss"] = slowness
         if self.inverse_dynamics is not None:
-            obs = self.prior.obs_encoder(window)
-            endpoints = torch.cat([obs[:, 0], last_valid(obs, window["valid"])], dim=-1)
+            obs = self.prior.obs_encoder(decoded)
+            endpoints = torch.cat([obs[:, 0], last_valid(obs, decoded["valid"])], dim=-1)
             inverse = (self.inverse_dynamics(endpoints).float() - mean.detach()).pow(2).sum(dim=-1).mean()
             total = total + config.inverse_dynamics_weight * inverse
             terms["inverse_dynamics_loss"] = inverse
-        return total, terms, mean
+        return total, terms, means[:batch]
