@@ -6,8 +6,9 @@ lerobot-train gives them (loading the batch itself is not timed). select_action 
 low-dim, against ACT with LeRobot's default sizes on the same observation (default chunking, and chunk = H).
 It also prints where a stage-1 step spends its time and how fast its LSTM kernels run against a dense matmul of the
 same size on the same core: the bound on what a faster implementation at the same width can gain in float32; and
-stage-1 throughput (windows per second on one core) of today's float32 step against `--policy.use_amp=true` (bf16
-autocast, as lerobot-train's Accelerator runs it) at batch 64 and 128, the settings timed in alternation in one run.
+stage-1 throughput (windows per second on one core) of the step before 4860f8e (each window's temporal pair encoded
+but not trained) against today's, in float32 and with `--policy.use_amp=true` (bf16 autocast, as lerobot-train's
+Accelerator runs it) at batch 64 and 128, the settings timed in alternation in one run.
 
 Run: `.venv/bin/python benchmarks/policy_speed.py` (~2-4 min on 2 cores; `--skip-paper` for ~1 min).
 On a GPU, `--device cuda` times the training steps of both configs there instead (float32 and bf16 autocast, the
@@ -23,6 +24,7 @@ import statistics
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -90,9 +92,11 @@ def batches(policy: SkillRetPolicy, root: Path, repo_id: str, batch_size: int, c
     return [{k: v.to(device) if isinstance(v, torch.Tensor) else v for k, v in batch.items()} for batch in out]
 
 
-def time_training(policy: SkillRetPolicy, data: list[dict], warmup: int = 2, amp: bool = False) -> float:
+def time_training(
+    policy: SkillRetPolicy, data: list[dict], warmup: int = 2, amp: bool = False, loss_of: Callable | None = None
+) -> float:
     """Median seconds per forward + backward + Adam step (`amp`: the forward under bf16 autocast, as lerobot-train
-    runs it with `--policy.use_amp=true` on CPU)."""
+    runs it with `--policy.use_amp=true` on CPU; `loss_of(batch)`: another loss than `policy.forward`)."""
     optimizer = torch.optim.Adam(policy.get_optim_params())
     policy.train()
     device = torch.device(policy.config.device)
@@ -102,7 +106,7 @@ def time_training(policy: SkillRetPolicy, data: list[dict], warmup: int = 2, amp
         sync()
         start = time.perf_counter()
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
-            loss, _ = policy.forward(batch)
+            loss, _ = (loss_of or policy.forward)(batch)
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -197,30 +201,49 @@ def stage1_breakdown(policy: SkillRetPolicy, data: list[dict]) -> None:
     )
 
 
-def stage1_throughput(prior: Path, rounds: int) -> None:
-    """Stage-1 windows per second on one core: today's float32 step (batch 64, the benchmark's) against bf16
-    autocast (`--policy.use_amp=true`) at batch 64 and 128, alternated for `rounds` rounds so that a machine
-    shared with other work slows every setting alike; medians and their ratios to float32 at batch 64.
+def pairs_encoded_only(policy: SkillRetPolicy) -> Callable:
+    """The stage-1 loss before 4860f8e, for the side-by-side ratio: every window of the batch an anchor, its
+    temporal pair encoded for the temporal term only (2B encoder rows and B decoder rows per B trained windows;
+    today's step trains B/2 anchors and their pairs: B and B)."""
 
-    Why bf16: the step is bound by the LSTMs' float32 arithmetic (see the breakdown); oneDNN runs their bf16
-    kernels faster on AVX512-BF16 / AMX cores, and a bigger batch then pays (in float32 it does
-    not: the kernels are already near the core's matmul rate)."""
-    settings = {
-        "float32, batch 64 (today)": (64, False),
-        "bf16 autocast, batch 64": (64, True),
-        "bf16 autocast, batch 128": (128, True),
+    def loss_of(batch: dict) -> tuple[torch.Tensor, dict]:
+        anchors = batch["index"].reshape(-1)
+        data = policy._data(anchors)
+        loss, terms, _ = policy._skill_loss([(data.own.gather(anchors, policy.config.device), data.own)])
+        return loss, terms
+
+    return loss_of
+
+
+def stage1_throughput(prior: Path, rounds: int) -> None:
+    """Stage-1 windows per second on one core: the step before 4860f8e (float32, batch 64, the benchmark's)
+    against today's (float32, and bf16 autocast `--policy.use_amp=true` at batch 64 and 128), alternated for
+    `rounds` rounds so that a machine shared with other work slows every setting alike; medians and their ratios
+    to the step before.
+
+    Why these: the step is bound by the LSTMs' float32 arithmetic (see the breakdown), so it gets faster only with
+    less LSTM work per trained window (today's step no longer encodes pairs it does not train) or cheaper
+    arithmetic: oneDNN runs bf16 kernels faster on AVX512-BF16 / AMX cores, and a bigger batch then pays (in
+    float32 it does not: the kernels are already near the core's matmul rate)."""
+    before = "before 4860f8e: float32, batch 64"
+    settings = {  # name: (batch, bf16 autocast, the step before)
+        before: (64, False, True),
+        "today: float32, batch 64": (64, False, False),
+        "today: bf16 autocast, batch 64": (64, True, False),
+        "today: bf16 autocast, batch 128": (128, True, False),
     }
     policy = make_policy(policy_fields("cpu"), prior, "bench/prior")
-    data = {size: batches(policy, prior, "bench/prior", size, 10) for size, _ in settings.values()}
+    data = {size: batches(policy, prior, "bench/prior", size, 10) for size, _, _ in settings.values()}
     rates: dict[str, list[float]] = {name: [] for name in settings}
     for _ in range(rounds):
-        for name, (size, amp) in settings.items():
-            rates[name].append(size / time_training(policy, data[size], amp=amp))
-    base = statistics.median(rates["float32, batch 64 (today)"])
+        for name, (size, amp, old) in settings.items():
+            loss_of = pairs_encoded_only(policy) if old else None
+            rates[name].append(size / time_training(policy, data[size], amp=amp, loss_of=loss_of))
+    base = statistics.median(rates[before])
     print(f"\n== stage-1 throughput on one core (cpu config, {rounds} alternating rounds; median) ==")
     for name, values in rates.items():
         rate = statistics.median(values)
-        print(f"{name:>28}: {rate:6.0f} windows/s   x{rate / base:.2f}   (rounds: {min(values):.0f}-{max(values):.0f})")
+        print(f"{name:>33}: {rate:6.0f} windows/s   x{rate / base:.2f}   (rounds: {min(values):.0f}-{max(values):.0f})")
     cpuinfo = Path("/proc/cpuinfo").read_text() if Path("/proc/cpuinfo").exists() else ""
     native = "yes" if "avx512_bf16" in cpuinfo or "amx_bf16" in cpuinfo else "no (or unknown)"
     print(f"bf16 instructions on this CPU: {native}; without them bf16 is emulated and use_amp does not pay")

@@ -28,7 +28,9 @@ SKILL_NORMALIZATION_MODES = (NormalizationMode.IDENTITY, NormalizationMode.MEAN_
 class SkillRetConfig(PreTrainedConfig):
     """Skill-based imitation with retrieval from prior data.
 
-    Stage `skills` (Algorithm 1) trains the skill VAE on windows of the prior dataset (`--dataset.*` = prior).
+    Stage `skills` (Algorithm 1) trains the skill VAE on windows of the prior dataset (`--dataset.*` = prior): a
+    batch of `--batch_size` B windows is B/2 temporal pairs (the batch's first half and a window d steps away in
+    each one's episode).
     Stage `policy` (Algorithm 2) starts from a stage-1 checkpoint (`--policy.path`), trains the latent policy on
     target windows (`--dataset.*` = target) plus retrieved prior windows, and keeps fine-tuning the skill model on
     prior and target windows.

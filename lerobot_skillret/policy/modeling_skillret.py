@@ -204,10 +204,12 @@ class SkillRetPolicy(PreTrainedPolicy):
                 "gives it): the temporal pair of every window is located from it."
             )
         data = self._data(batch["index"].reshape(-1))
+        if self.config.stage == "skills":  # the anchors; their temporal pairs are the batch's other half
+            batch = first_half(batch)
         if self.config.fast_windows:  # LeRobot gave anchor frames only: gather their windows (same pads)
             batch = data.own.gather(batch["index"].reshape(-1), self._device())
         if self.config.stage == "skills":
-            loss, terms, _ = self._skill_loss([(first_half(batch), data.own)], decode_pairs=True)
+            loss, terms, _ = self._skill_loss([(batch, data.own)], decode_pairs=True)
             return loss, {name: float(value) for name, value in terms.items()}
         return self._stage2_loss(batch, data)
 
