@@ -86,6 +86,22 @@ MUTANTS = [
         tuple(POLICY_TESTS),
     ),
     Mutant(
+        "pairs_untrained",
+        "stage-1 temporal pairs encoded for the temporal term but never reconstructed",
+        PKG / "policy/modeling_skillret.py",
+        "self._skill_loss([(batch, data.own)], decode_pairs=True)",
+        "self._skill_loss([(batch, data.own)], decode_pairs=False)",
+        tuple(POLICY_TESTS),
+    ),
+    Mutant(
+        "pair_means",
+        "temporal term fed the anchors' means twice instead of the anchor's and its pair's",
+        PKG / "policy/skills.py",
+        "pair_mean = means[batch : 2 * batch]",
+        "pair_mean = means[:batch]",
+        tuple(POLICY_TESTS),
+    ),
+    Mutant(
         "retrieved_id",
         "retrieved windows conditioned on the target's dataset id",
         PKG / "policy/modeling_skillret.py",

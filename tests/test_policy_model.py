@@ -122,6 +122,26 @@ def _grad_norm(module: torch.nn.Module) -> float:
     return sum(float(p.grad.norm()) for p in module.parameters() if p.grad is not None)
 
 
+def test_pair_loss_terms_equal_the_modules_called_one_by_one(prior_root):
+    """With `decode_pairs`, reconstruction averages the valid steps of windows and pairs alike, and the temporal
+    term predicts each offset d from the window's and its own pair's encoder means (eval mode: z is the mean)."""
+    config = tiny_config()
+    policy = build_policy(config, PRIOR_REPO, prior_root).eval()
+    batch = training_batch(config, PRIOR_REPO, prior_root)
+    window = policy._window(batch)
+    pair_raw, offset = policy._data(batch["index"]).own.pair(batch["index"], config.tc_max_offset, "cpu")
+    pair = policy._window(pair_raw)
+    skills = policy.skills
+    with torch.no_grad():
+        _, terms, _ = skills.loss(window, pair, offset, decode_pairs=True)
+        means = [skills.encoder(w)[0] for w in (window, pair)]
+        errors = [skills.action_error(mean, w) for mean, w in zip(means, (window, pair), strict=True)]
+        reconstruction = sum((e * v).sum() for e, v in errors) / sum(v.sum() for _, v in errors)
+        predicted = skills.temporal(torch.cat(means, dim=-1)).squeeze(-1)
+    torch.testing.assert_close(terms["reconstruction_loss"], reconstruction)
+    torch.testing.assert_close(terms["tc_loss"], (predicted - offset.float()).pow(2).mean())
+
+
 def test_kl_and_temporal_terms_reach_the_encoder(prior_root):
     config = tiny_config()
     policy = build_policy(config, PRIOR_REPO, prior_root)
