@@ -3,7 +3,8 @@
 Stage `skills` (Algorithm 1): `--dataset.*` is the prior (play) dataset. A batch of B windows trains the skill VAE
 as B/2 temporal pairs: the first half of the batch's windows and each one's pair, which the policy fetches itself
 (same episode, d steps away). Every window is encoded for the temporal term anyway, so each is also reconstructed:
-1.5x the windows per second of training B windows and B encoder-only pairs. The latent policy is frozen.
+1.2-1.4x the windows per second of training B windows and B encoder-only pairs (configs/README.md). The latent
+policy is frozen.
 Stage `policy` (Algorithm 2): `--policy.path=<stage-1 pretrained_model>`, `--dataset.*` is the target dataset.
 One forward computes the latent-policy loss on target windows (id 0) and on retrieved prior windows (id 1, read from
 `retrieval_path`), plus the skill loss on target and prior windows (fine-tuning, line 17).
