@@ -196,10 +196,11 @@ def test_help_explains_the_options():
 
 def test_help_shows_the_config_defaults(monkeypatch):
     """The defaults --help names are SkillRetConfig's (one source of truth), not numbers typed into the help."""
+    from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
     from lerobot_skillret.retrieval import cli
 
-    monkeypatch.setitem(cli.CONFIG_DEFAULTS, "retrieval_fraction", 0.37)
-    monkeypatch.setitem(cli.CONFIG_DEFAULTS, "retrieval_num_target", 1234)
+    monkeypatch.setattr(SkillRetConfig, "retrieval_fraction", 0.37)
+    monkeypatch.setattr(SkillRetConfig, "retrieval_num_target", 1234)
     help_text = " ".join(cli.build_parser().format_help().split())
     assert "config default 0.37" in help_text and "config default 1,234" in help_text
 

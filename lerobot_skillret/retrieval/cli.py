@@ -17,7 +17,6 @@ retrieval_num_target), whose defaults (the paper's) are shown with each option a
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import logging
 import sys
 from collections.abc import Mapping
@@ -28,7 +27,6 @@ from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
 from lerobot_skillret.retrieval.settings import ABLATIONS, EVERY_WINDOW, METRICS, MODES, RetrievalSettings, ablation
 
 DEFAULTS = RetrievalSettings()  # execution defaults shown in --help
-CONFIG_DEFAULTS = {f.name: f.default for f in dataclasses.fields(SkillRetConfig)}  # the paper's, shown in --help
 
 
 def _num_prior(text: str) -> int | str:
@@ -79,23 +77,23 @@ def build_parser() -> argparse.ArgumentParser:
     paper.add_argument(
         "--fraction",
         type=float,
-        help=f"r: share of candidates retrieved, in (0, 1] (config default {CONFIG_DEFAULTS['retrieval_fraction']})",
+        help=f"r: share of candidates retrieved, in (0, 1] (config default {SkillRetConfig.retrieval_fraction})",
     )
     paper.add_argument(
         "--metric",
         choices=METRICS,
-        help=f"l2 on encoder means, or symmetric KL (A.2) (config default {CONFIG_DEFAULTS['retrieval_metric']})",
+        help=f"l2 on encoder means, or symmetric KL (A.2) (config default {SkillRetConfig.retrieval_metric})",
     )
     paper.add_argument(
         "--num-prior",
         type=_num_prior,
         help=f"N candidate windows drawn from the prior, or '{EVERY_WINDOW}' "
-        f"(config default {CONFIG_DEFAULTS['retrieval_num_prior']:,})",
+        f"(config default {SkillRetConfig.retrieval_num_prior:,})",
     )
     paper.add_argument(
         "--num-target",
         type=int,
-        help=f"M target windows encoded (config default {CONFIG_DEFAULTS['retrieval_num_target']:,})",
+        help=f"M target windows encoded (config default {SkillRetConfig.retrieval_num_target:,})",
     )
     paper.add_argument("--seed", type=int, default=0, help="seed of every random draw (default 0)")
 
