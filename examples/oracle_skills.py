@@ -3,7 +3,9 @@
 Every H steps the checkpoint's encoder encodes the demonstration's own window (the oracle latent) and the
 closed-loop decoder executes it from the demonstration's initial state (`lerobot_skillret.pipeline.oracle`). High
 success here and low success of the trained policy points at the latent policy; low success here points at the
-skill model. `benchmarks/skill_study.py` runs it over stage-1 training steps, prior sizes and the task ladder.
+skill model. With `--swap k` each rollout executes the latents of the demonstration k places on from its own initial
+state: skills that generalise still succeed, latents that replay one demonstration's motion do not.
+`benchmarks/skill_study.py` runs it over stage-1 training steps, prior sizes and the task ladder.
 
     MUJOCO_GL=egl python examples/oracle_skills.py \\
         --checkpoint outputs/demo/train/skillret/open_drawer/seed0/checkpoints/last/pretrained_model \\
@@ -36,13 +38,21 @@ def main() -> None:
         default=0,
         help="every n-th skill is the stage-2 latent policy's own choice (0: none, 1: all, 2: every other)",
     )
+    parser.add_argument(
+        "--swap",
+        type=int,
+        default=0,
+        help="start from each demo's initial state but execute the latents of the demo this many places on (0: its "
+        "own): do the skills carry over to other object positions, or replay one demo's motion?",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     result = oracle_success(
-        args.checkpoint, args.demos, args.task, args.episodes, args.slack, args.align, args.policy_every
+        args.checkpoint, args.demos, args.task, args.episodes, args.slack, args.align, args.policy_every, args.swap
     )
+    swapped = f" (each executing the latents of the demo {args.swap} on)" if args.swap else ""
     print(
-        f"oracle-skill success: {result['success']:.0%} of {result['episodes']} demos, sub-goals met "
+        f"oracle-skill success: {result['success']:.0%} of {result['episodes']} demos{swapped}, sub-goals met "
         f"{result['goals_met']:.0%}, teacher-forced oracle action error {result['oracle_action_error']:.4f}"
     )
 

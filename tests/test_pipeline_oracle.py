@@ -53,3 +53,55 @@ def test_policy_every_leaves_every_nth_skill_to_the_latent_policy() -> None:
         oracle_starts.clear()
         oracle_episode(policy, Env(), sampler, 0, 10, np.zeros(1), slack=1.0, policy_every=every)
         assert oracle_starts == expected, every
+
+
+def test_swap_starts_from_each_demo_and_executes_the_next_ones_latents(monkeypatch) -> None:
+    """Rollout i resets to demo i's initial state and encodes demo i + swap's frames (wrapping around)."""
+    from lerobot_skillret.pipeline import oracle
+
+    firsts, length = [0, 10, 20], 10  # three demos of 10 frames, global frames 0-29
+    columns = SimpleNamespace(
+        td={"episode_index": torch.arange(30) // length, "episode_end": (torch.arange(30) // length + 1) * length}
+    )
+    meta = {"episodes": [{"episode_index": e, "initial_state": [float(e)]} for e in range(3)]}
+    resets, encoded = [], []
+
+    class Env:
+        def __init__(self, task):
+            pass
+
+        def reset(self, options):
+            resets.append(float(options["initial_state"][0]))
+            return {"agent_pos": np.zeros(3, dtype=np.float32)}, {}
+
+        def step(self, action):
+            return {"agent_pos": np.zeros(3, dtype=np.float32)}, 0.0, False, False, {"is_success": False}
+
+        def unmet_goals(self):
+            return ["goal"]
+
+        def close(self):
+            pass
+
+    policy = SimpleNamespace(
+        config=SimpleNamespace(horizon=5, history=1, stage="skills"),
+        eval=lambda: policy,
+        reset=lambda: None,
+        encode_skill=lambda anchors: (anchors, None),
+        execute_skill=lambda anchors: encoded.append(int(anchors[0])),
+        select_action=lambda batch: torch.zeros(1, 7),
+        imitation_error=lambda window: {"oracle": torch.zeros(1)},
+    )
+    monkeypatch.setattr(oracle.SkillRetPolicy, "from_pretrained", lambda checkpoint: policy)
+    monkeypatch.setattr(oracle.EpisodeColumns, "from_dataset", lambda repo_id, root: columns)
+    monkeypatch.setattr(oracle, "WindowSampler", lambda columns, history, horizon: SimpleNamespace(gather=lambda a: a))
+    monkeypatch.setattr(oracle, "skill_starts", lambda columns, horizon: torch.tensor(firsts))
+    monkeypatch.setattr(oracle, "load_kitchen_meta", lambda root: meta)
+    monkeypatch.setattr(oracle, "KitchenEnv", Env)
+    monkeypatch.setattr(oracle, "get_task", lambda task: SimpleNamespace(goals=["goal"]))
+
+    for swap, sources in [(0, [0, 1, 2]), (1, [1, 2, 0]), (2, [2, 0, 1])]:
+        resets.clear(), encoded.clear()
+        oracle.oracle_success(oracle.Path("x"), oracle.Path("demos"), "task", slack=1.0, swap=swap, log=lambda *a: None)
+        assert resets == [0.0, 1.0, 2.0], swap
+        assert encoded == [firsts[s] + t for s in sources for t in (0, 5)], swap

@@ -6,7 +6,9 @@ success here and low success of the trained policy points at the latent policy; 
 skill model. On demonstrations that no run trained on (another generation seed) it measures whether stage 1 learned
 skills that transfer to the target task. With `policy_every` a stage-2 checkpoint's latent policy chooses some of the
 skills itself (every skill: the policy's own rollout from the demonstrations' initial states), which shows whether
-its latents fail everywhere or only where it has to carry on from its own earlier choices.
+its latents fail everywhere or only where it has to carry on from its own earlier choices. With `swap` each rollout
+starts from one demonstration's initial state and executes another's latents: whether a skill latent means "pick the
+fish" wherever the fish is, or replays one demonstration's motion.
 """
 
 from __future__ import annotations
@@ -80,6 +82,12 @@ def _closest_frame(policy: SkillRetPolicy, sampler: WindowSampler, batch: dict, 
     return lo + int((demo - now).norm(dim=-1).argmin())
 
 
+def swapped(entries: list[dict], swap: int) -> list[tuple[dict, dict]]:
+    """(initial state's demonstration, latents' demonstration) pairs: each demonstration with the one `swap` places
+    further on, wrapping around (0: its own)."""
+    return [(entry, entries[(i + swap) % len(entries)]) for i, entry in enumerate(entries)]
+
+
 def oracle_success(
     checkpoint: Path,
     demos: Path,
@@ -88,12 +96,15 @@ def oracle_success(
     slack: float = 1.5,
     align: bool = False,
     policy_every: int = 0,
+    swap: int = 0,
     log=print,
 ) -> dict:
     """Oracle-skill success of `checkpoint` on the first `episodes` demonstrations of the dataset at `demos`, and
     the teacher-forced oracle action error on all of them (squared error summed over action dimensions, in the
     decoder's normalised units, at every window where a rollout picks a skill). `policy_every`: see
-    `oracle_episode` (needs a stage-2 checkpoint: a stage-1 latent policy is untrained)."""
+    `oracle_episode` (needs a stage-2 checkpoint: a stage-1 latent policy is untrained). `swap` > 0: rollout i
+    starts from demonstration i's initial state but executes the latents of demonstration i + swap (of the first
+    `episodes`, wrapping around)."""
     policy = SkillRetPolicy.from_pretrained(checkpoint).eval()
     config = policy.config
     if policy_every and config.stage != "policy":
@@ -106,14 +117,15 @@ def oracle_success(
     episode_end = columns.td["episode_end"].as_subclass(torch.Tensor).numpy()
     env, rows = KitchenEnv(task=task), []
     try:
-        for entry in meta:
-            first = int(np.flatnonzero(episode_index == entry["episode_index"])[0])
+        for start, source in swapped(meta, swap):
+            first = int(np.flatnonzero(episode_index == source["episode_index"])[0])
             length = int(episode_end[first]) - first
             success, unmet = oracle_episode(
-                policy, env, sampler, first, length, np.asarray(entry["initial_state"]), slack, align, policy_every
+                policy, env, sampler, first, length, np.asarray(start["initial_state"]), slack, align, policy_every
             )
-            rows.append(OracleEpisode(entry["episode_index"], length, success, unmet))
-            log(f"  demo {entry['episode_index']}: {length} steps, success={success}, unmet={unmet}")
+            rows.append(OracleEpisode(start["episode_index"], length, success, unmet))
+            latents = f", latents of demo {source['episode_index']}" if swap else ""
+            log(f"  demo {start['episode_index']}{latents}: {length} steps, success={success}, unmet={unmet}")
     finally:
         env.close()
     goals = len(get_task(task).goals)
