@@ -1,4 +1,5 @@
-"""The oracle harness: phase alignment inside its search window; which skills the latent policy chooses."""
+"""The oracle harness: phase alignment inside its search window; which skills the latent policy chooses; which
+demonstration each rollout starts from and whose latents it executes."""
 
 from __future__ import annotations
 
@@ -7,7 +8,28 @@ from types import SimpleNamespace
 import numpy as np
 import torch
 
+from lerobot_skillret.pipeline import oracle
 from lerobot_skillret.pipeline.oracle import _closest_frame, oracle_episode
+
+
+class Env:
+    """A kitchen env that never succeeds; records the initial state of every reset."""
+
+    def __init__(self) -> None:
+        self.resets: list[float] = []
+
+    def reset(self, options):
+        self.resets.append(float(options["initial_state"][0]))
+        return {"agent_pos": np.zeros(3, dtype=np.float32)}, {}
+
+    def step(self, action):
+        return {"agent_pos": np.zeros(3, dtype=np.float32)}, 0.0, False, False, {"is_success": False}
+
+    def unmet_goals(self):
+        return ["goal"]
+
+    def close(self):
+        pass
 
 
 def test_closest_frame_is_the_nearest_observation_in_the_window() -> None:
@@ -29,17 +51,6 @@ def test_closest_frame_is_the_nearest_observation_in_the_window() -> None:
 
 def test_policy_every_leaves_every_nth_skill_to_the_latent_policy() -> None:
     """0: every skill is the oracle's; n: the n-th, 2n-th, ... skills are the policy's own (`select_action`)."""
-
-    class Env:
-        def reset(self, options):
-            return {"agent_pos": np.zeros(3, dtype=np.float32)}, {}
-
-        def step(self, action):
-            return {"agent_pos": np.zeros(3, dtype=np.float32)}, 0.0, False, False, {"is_success": False}
-
-        def unmet_goals(self):
-            return ["goal"]
-
     oracle_starts: list[int] = []
     policy = SimpleNamespace(
         config=SimpleNamespace(horizon=2),
@@ -57,32 +68,12 @@ def test_policy_every_leaves_every_nth_skill_to_the_latent_policy() -> None:
 
 def test_swap_starts_from_each_demo_and_executes_the_next_ones_latents(monkeypatch) -> None:
     """Rollout i resets to demo i's initial state and encodes demo i + swap's frames (wrapping around)."""
-    from lerobot_skillret.pipeline import oracle
-
     firsts, length = [0, 10, 20], 10  # three demos of 10 frames, global frames 0-29
     columns = SimpleNamespace(
         td={"episode_index": torch.arange(30) // length, "episode_end": (torch.arange(30) // length + 1) * length}
     )
     meta = {"episodes": [{"episode_index": e, "initial_state": [float(e)]} for e in range(3)]}
-    resets, encoded = [], []
-
-    class Env:
-        def __init__(self, task):
-            pass
-
-        def reset(self, options):
-            resets.append(float(options["initial_state"][0]))
-            return {"agent_pos": np.zeros(3, dtype=np.float32)}, {}
-
-        def step(self, action):
-            return {"agent_pos": np.zeros(3, dtype=np.float32)}, 0.0, False, False, {"is_success": False}
-
-        def unmet_goals(self):
-            return ["goal"]
-
-        def close(self):
-            pass
-
+    env, encoded = Env(), []
     policy = SimpleNamespace(
         config=SimpleNamespace(horizon=5, history=1, stage="skills"),
         eval=lambda: policy,
@@ -97,11 +88,11 @@ def test_swap_starts_from_each_demo_and_executes_the_next_ones_latents(monkeypat
     monkeypatch.setattr(oracle, "WindowSampler", lambda columns, history, horizon: SimpleNamespace(gather=lambda a: a))
     monkeypatch.setattr(oracle, "skill_starts", lambda columns, horizon: torch.tensor(firsts))
     monkeypatch.setattr(oracle, "load_kitchen_meta", lambda root: meta)
-    monkeypatch.setattr(oracle, "KitchenEnv", Env)
+    monkeypatch.setattr(oracle, "KitchenEnv", lambda task: env)
     monkeypatch.setattr(oracle, "get_task", lambda task: SimpleNamespace(goals=["goal"]))
 
     for swap, sources in [(0, [0, 1, 2]), (1, [1, 2, 0]), (2, [2, 0, 1])]:
-        resets.clear(), encoded.clear()
+        env.resets.clear(), encoded.clear()
         oracle.oracle_success(oracle.Path("x"), oracle.Path("demos"), "task", slack=1.0, swap=swap, log=lambda *a: None)
-        assert resets == [0.0, 1.0, 2.0], swap
+        assert env.resets == [0.0, 1.0, 2.0], swap
         assert encoded == [firsts[s] + t for s in sources for t in (0, 5)], swap
