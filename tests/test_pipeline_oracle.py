@@ -36,8 +36,8 @@ def test_closest_frame_is_the_nearest_observation_in_the_window() -> None:
     state = torch.arange(40, dtype=torch.float32)[:, None].repeat(1, 3)  # frame i observes (i, i, i)
     env = torch.zeros(40, 2)
     columns = SimpleNamespace(td={"observation.state": state, "observation.environment_state": env})
-    identity = SimpleNamespace(normalize=lambda key, value: value)
-    policy = SimpleNamespace(low_dim_keys=["observation.environment_state", "observation.state"], normalizer=identity)
+    keys = ["observation.environment_state", "observation.state"]
+    policy = SimpleNamespace(low_dim_keys=keys, low_dim_features=lambda raw: torch.cat([raw[k] for k in keys], -1))
     sampler = SimpleNamespace(columns=columns)
 
     def now(value: float) -> dict:

@@ -74,11 +74,10 @@ def oracle_episode(
 def _closest_frame(policy: SkillRetPolicy, sampler: WindowSampler, batch: dict, first: int, lo: int, hi: int) -> int:
     """The demonstration step in [lo, hi] whose normalised observation is nearest the current one (L2)."""
     frames = torch.arange(first + lo, first + hi + 1)
-    keys = policy.low_dim_keys
-    demo = torch.cat(
-        [policy.normalizer.normalize(k, sampler.columns.td[k].as_subclass(torch.Tensor)[frames]) for k in keys], -1
+    demo = policy.low_dim_features(
+        {k: sampler.columns.td[k].as_subclass(torch.Tensor)[frames] for k in policy.low_dim_keys}
     )
-    now = torch.cat([policy.normalizer.normalize(k, batch[k].float()) for k in keys], -1)
+    now = policy.low_dim_features(batch)
     return lo + int((demo - now).norm(dim=-1).argmin())
 
 

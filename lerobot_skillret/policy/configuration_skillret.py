@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from itertools import pairwise
 
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.configs.types import FeatureType, NormalizationMode
@@ -50,6 +51,10 @@ class SkillRetConfig(PreTrainedConfig):
     vision_backbone: str = "resnet18"  # per-camera torchvision ResNet, trained from scratch; resnet18 is the seed's C.1
     crop_shape: tuple[int, int] | None = (76, 76)  # random crop during training, centre crop at inference
     spatial_softmax_keypoints: int = 32  # keypoints of the spatial-softmax pooling after each backbone
+    relative_positions: tuple[int, ...] = ()  # not in the paper: start indices of (x, y, z) triples in
+    # `observation.environment_state` that every module sees minus the end effector (`observation.state[:3]`), so a
+    # skill reads "the bread is 10 cm ahead" the same in every scene (see policy/relative_positions.py); () keeps
+    # absolute positions (the paper). configs/policy/cpu.json lists the kitchen's movables
 
     # --- Skill model (Table 7).
     latent_dim: int = 64  # dimension of the skill latent z
@@ -286,6 +291,7 @@ class SkillRetConfig(PreTrainedConfig):
                 "skillret needs at least one observation feature: `observation.state`, "
                 "`observation.environment_state` or `observation.images.*`."
             )
+        self._validate_relative_positions()
         shapes = {tuple(ft.shape) for ft in self.image_features.values()}
         if len(shapes) > 1:
             raise ValueError(f"skillret expects all cameras to share one image shape; got {sorted(shapes)}.")
@@ -299,3 +305,24 @@ class SkillRetConfig(PreTrainedConfig):
                     f"`crop_shape`={self.crop_shape} is larger than camera `{key}` {tuple(ft.shape)}; set "
                     "--policy.crop_shape to at most the image size (or null to disable cropping)."
                 )
+
+    def _validate_relative_positions(self) -> None:
+        """Each triple must lie inside the environment state, once, next to a state that starts with the gripper."""
+        if not self.relative_positions:
+            return
+        state, env = self.robot_state_feature, self.env_state_feature
+        if state is None or env is None or state.shape[0] < 3:
+            raise ValueError(
+                f"`relative_positions`={list(self.relative_positions)} needs `observation.state` (the end effector "
+                "position first) and `observation.environment_state`; the inputs have "
+                f"{sorted(self.input_features)}. Set --policy.relative_positions=[] for absolute positions."
+            )
+        starts = sorted(self.relative_positions)
+        bad = [s for s in starts if not 0 <= s <= env.shape[0] - 3]
+        overlapping = [b for a, b in pairwise(starts) if b - a < 3]
+        if bad or overlapping:
+            raise ValueError(
+                f"`relative_positions`={list(self.relative_positions)}: each start index must leave an (x, y, z) "
+                f"triple inside `observation.environment_state` (size {env.shape[0]}, so 0..{env.shape[0] - 3}) and "
+                f"triples must not overlap ({f'out of range: {bad}' if bad else f'overlapping: {overlapping}'})."
+            )

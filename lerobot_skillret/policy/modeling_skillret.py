@@ -37,6 +37,7 @@ from lerobot_skillret.files import read_json
 from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
 from lerobot_skillret.policy.latent_policy import RETRIEVED_ID, TARGET_ID, LatentPolicy
 from lerobot_skillret.policy.normalization import SkillNormalizer
+from lerobot_skillret.policy.relative_positions import relative_stats, to_relative
 from lerobot_skillret.policy.skills import SkillModel, make_observation_encoder
 
 if TYPE_CHECKING:
@@ -80,6 +81,8 @@ class SkillRetPolicy(PreTrainedPolicy):
         image_shapes = {k: features[k].shape for k in self.image_keys}
         action_dim = int(config.action_feature.shape[0])
 
+        if dataset_stats is not None:
+            dataset_stats = relative_stats(dataset_stats, config.relative_positions)
         self.normalizer = SkillNormalizer(
             {**features, **config.output_features},
             config.skill_normalization_mapping,
@@ -136,10 +139,16 @@ class SkillRetPolicy(PreTrainedPolicy):
                     + (hint if key in self.image_keys else "")
                     + "."
                 )
-        return {
-            key: self.normalizer.normalize(key, raw[key][(slice(None), steps)].to(device, torch.float32))
-            for key in self.observation_keys
-        }
+        observation = {key: raw[key][(slice(None), steps)].to(device, torch.float32) for key in self.observation_keys}
+        observation = to_relative(observation, self.config.relative_positions)
+        return {key: self.normalizer.normalize(key, value) for key, value in observation.items()}
+
+    def low_dim_features(self, raw: Batch) -> Tensor:
+        """RAW low-dimensional observations (N, ...) as the modules see them (relative positions, normalised),
+        concatenated into (N, D): the model's units for a distance between two states."""
+        observation = {key: raw[key].to(self._device(), torch.float32) for key in self.low_dim_keys}
+        observation = to_relative(observation, self.config.relative_positions)
+        return torch.cat([self.normalizer.normalize(key, value) for key, value in observation.items()], dim=-1)
 
     def _window(self, raw: Batch) -> dict[str, Tensor]:
         """The last H steps of a raw window, normalised, with `valid` = not padded past the episode's end.
@@ -496,6 +505,13 @@ def _check_checkpoint_features(config: SkillRetConfig, folder: Path, stored: dic
     checkpoint's config.json, if it has one."""
     if stored is None:
         return
+    trained = tuple(stored.get("relative_positions", ()))
+    if trained != tuple(config.relative_positions):
+        raise ValueError(
+            f"The checkpoint {folder} was trained with relative_positions={list(trained)}, this run asks for "
+            f"{list(config.relative_positions)}: its normalisation statistics and weights read positions one way. "
+            "Drop the --policy.relative_positions override, or train stage 1 again with the new value."
+        )
     before = {
         key: tuple(ft["shape"])
         for key, ft in {**stored.get("input_features", {}), **stored.get("output_features", {})}.items()
