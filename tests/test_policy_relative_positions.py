@@ -89,3 +89,14 @@ def test_relative_positions_need_the_gripper_state(tmp_path):
     root = make_synthetic_dataset(tmp_path / "ds", PRIOR_REPO, num_episodes=1, state_dim=2, seed=0)
     with pytest.raises(ValueError, match=r"needs `observation.state` \(the end effector"):
         build_policy(tiny_config(relative_positions=(0,)), PRIOR_REPO, root)
+
+
+def test_the_documented_kitchen_list_is_every_movables_position():
+    """configs/README.md gives users the kitchen's list; it must follow the observation layout."""
+    from lerobot_skillret.kitchen.layout import MOVABLES
+    from lerobot_skillret.kitchen.observations import ENV_STATE_NAMES
+
+    starts = [ENV_STATE_NAMES.index(f"{name}_x") for name in MOVABLES]
+    assert ENV_STATE_NAMES[starts[0] : starts[0] + 3] == [f"{MOVABLES[0]}_{c}" for c in "xyz"]
+    documented = (Path(__file__).resolve().parents[1] / "configs" / "README.md").read_text()
+    assert f"--policy.relative_positions=[{','.join(map(str, starts))}]" in documented
