@@ -54,7 +54,7 @@ class SkillRetConfig(PreTrainedConfig):
     relative_positions: tuple[int, ...] = ()  # not in the paper: start indices of (x, y, z) triples in
     # `observation.environment_state` that every module sees minus the end effector (`observation.state[:3]`), so a
     # skill reads "the bread is 10 cm ahead" the same in every scene (see policy/relative_positions.py); () keeps
-    # absolute positions (the paper). configs/policy/cpu.json lists the kitchen's movables
+    # absolute positions (the paper). configs/README.md gives the kitchen's list (its eleven movables)
 
     # --- Skill model (Table 7).
     latent_dim: int = 64  # dimension of the skill latent z

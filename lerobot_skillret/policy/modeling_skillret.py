@@ -139,16 +139,20 @@ class SkillRetPolicy(PreTrainedPolicy):
                     + (hint if key in self.image_keys else "")
                     + "."
                 )
-        observation = {key: raw[key][(slice(None), steps)].to(device, torch.float32) for key in self.observation_keys}
+        return self._model_inputs(
+            {key: raw[key][(slice(None), steps)].to(device, torch.float32) for key in self.observation_keys}
+        )
+
+    def _model_inputs(self, observation: dict[str, Tensor]) -> dict[str, Tensor]:
+        """RAW float observations -> what every module sees: relative positions (if configured), normalised."""
         observation = to_relative(observation, self.config.relative_positions)
         return {key: self.normalizer.normalize(key, value) for key, value in observation.items()}
 
     def low_dim_features(self, raw: Batch) -> Tensor:
-        """RAW low-dimensional observations (N, ...) as the modules see them (relative positions, normalised),
-        concatenated into (N, D): the model's units for a distance between two states."""
+        """RAW low-dimensional observations (N, ...) as the modules see them, concatenated into (N, D): the model's
+        units for a distance between two states."""
         observation = {key: raw[key].to(self._device(), torch.float32) for key in self.low_dim_keys}
-        observation = to_relative(observation, self.config.relative_positions)
-        return torch.cat([self.normalizer.normalize(key, value) for key, value in observation.items()], dim=-1)
+        return torch.cat(list(self._model_inputs(observation).values()), dim=-1)
 
     def _window(self, raw: Batch) -> dict[str, Tensor]:
         """The last H steps of a raw window, normalised, with `valid` = not padded past the episode's end.
