@@ -8,6 +8,7 @@ import pytest
 import torch
 from lerobot.configs.types import NormalizationMode
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
+from lerobot.utils.constants import OBS_ENV_STATE, OBS_STATE
 from policy_fixtures import PRIOR_REPO, build_policy, tiny_config, training_batch
 from synthetic import make_synthetic_dataset
 
@@ -15,7 +16,7 @@ from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
-STATE, ENV = "observation.state", "observation.environment_state"
+STATE, ENV = OBS_STATE, OBS_ENV_STATE
 TRIPLE = slice(1, 4)  # the synthetic env state has 5 columns: one triple at 1, two absolute columns around it
 
 
