@@ -291,10 +291,10 @@ def rollout_seeds(episodes: int) -> list[int]:
 
 
 @torch.no_grad()
-def rollouts(model: nn.Module, task: str, episodes: int) -> dict:
+def rollouts(model: nn.Module, task: str, episodes: int, discrete_gripper: bool = False) -> dict:
     from lerobot_skillret.kitchen.gym_env import KitchenEnv
 
-    env = KitchenEnv(task=task)
+    env = KitchenEnv(task=task, discrete_gripper=discrete_gripper)
     s = model.stats  # type: ignore[attr-defined]
     per_rollout = []
     seeds = rollout_seeds(episodes)
@@ -355,7 +355,7 @@ def run_task(task: str, args: argparse.Namespace) -> dict:
     weights = args.data_dir / f"bc_{args.reference}_{task}_seed{args.seed}.pt"  # kept for diagnosing its rollouts
     write_atomic(weights, lambda tmp: torch.save({"model": model.state_dict(), "stats": model.stats}, tmp))
     start = time.monotonic()
-    evaluation = rollouts(model, task, args.rollouts)
+    evaluation = rollouts(model, task, args.rollouts, args.discrete_gripper)
     return {
         "task": task,
         "level": TASKS[task].level,
@@ -367,6 +367,7 @@ def run_task(task: str, args: argparse.Namespace) -> dict:
         "final_loss": training["loss_curve"][-1],
         **curve_points(training["loss_curve"]),
         "eval_s": round(time.monotonic() - start, 1),
+        "discrete_gripper": args.discrete_gripper,
         **evaluation,
     }
 
@@ -468,6 +469,11 @@ def main() -> None:
     parser.add_argument("--device", default="cpu", help="where the reference trains (rollouts run on the CPU)")
     parser.add_argument("--max-train-minutes", type=float, default=float("inf"), help="wall-time cap on training")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--discrete-gripper",
+        action="store_true",
+        help="roll out with the env's gripper command rounded to open / hold / close (`--env.discrete_gripper`)",
+    )
     parser.add_argument("--workers", type=int, default=1, help="simulation workers of the demo generator")
     parser.add_argument("--data-dir", type=Path, default=ROOT / "outputs" / "learnability")
     parser.add_argument("--results", type=Path, help=f"default: {RESULTS} for mlp, its bc_rnn/ or act/ for the others")

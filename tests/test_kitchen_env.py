@@ -149,6 +149,28 @@ def test_render_stride_reuses_frames_between_renders():
     env.close()
 
 
+def test_discrete_gripper_turns_a_small_command_into_a_hold():
+    """The fingers integrate their command: a learner's +0.2 where the demonstrations say 0 (hold) closes them
+    step by step (on an object just released, in the bread chains); `discrete_gripper` rounds it to the hold."""
+    from lerobot_skillret.kitchen.gym_env import KitchenEnv
+    from lerobot_skillret.kitchen.primitives import CLOSED, OPEN
+
+    assert {np.round(level) for level in (OPEN, 0.0, CLOSED)} == {OPEN, 0.0, CLOSED}  # the expert's own commands
+    drift = np.zeros(7)
+    drift[-1] = 0.2
+    moved = {}
+    for discrete in (False, True):
+        env = KitchenEnv("bread_on_plate", discrete_gripper=discrete)
+        env.reset(seed=0)
+        start = env.scene.gripper_qpos()
+        for _ in range(10):
+            env.step(drift)
+        moved[discrete] = float(np.abs(env.scene.gripper_qpos() - start).max())
+        env.close()
+    assert moved[False] > 0.01 and moved[True] < 0.001, moved  # (a hold still settles the fingers a little)
+    assert PandaKitchenEnv(discrete_gripper=True).gym_kwargs["discrete_gripper"] is True
+
+
 def test_lerobots_make_env_path_builds_the_kitchen():
     """LeRobot 0.6's own path: `make_env_config` + `make_env` go through `PandaKitchenEnv.create_envs`."""
     from lerobot.envs.factory import make_env, make_env_config, make_env_pre_post_processors

@@ -34,6 +34,10 @@ class PandaKitchenEnv(EnvConfig):
     image_size: int = O.DEFAULT_IMAGE_SIZE
     # lerobot-eval renders every step of its first 10 episodes; a stride k re-renders every k steps (videos at fps/k)
     render_stride: int = 1
+    # round the gripper command to -1 / 0 / +1 (open / hold / close), the only three the expert and the play data
+    # send; off (the default and the published tables): a learner's small non-zero "hold" integrates in the
+    # gripper and closes the fingers again on an object it has just released (`KitchenEnv`)
+    discrete_gripper: bool = False
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=dict)
 
@@ -63,6 +67,7 @@ class PandaKitchenEnv(EnvConfig):
             "image_size": self.image_size,
             "episode_length": self.episode_length,
             "render_stride": self.render_stride,
+            "discrete_gripper": self.discrete_gripper,
         }
 
     def create_envs(self, n_envs: int, use_async_envs: bool = False) -> dict[str, dict[int, gym.vector.VectorEnv]]:

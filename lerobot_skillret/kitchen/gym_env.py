@@ -3,7 +3,8 @@
 Observations come from `observations.build_observation`; success from the task's predicates; the episode
 terminates on success and is truncated at the task's `max_steps`. The reward is the fraction of the goals unmet at
 reset that are met now (1.0 on success), so a failed rollout still reports how far it got; `info["in_a_row"]` is how
-many of them hold in the plan's order up to the first that does not (CALVIN's chain length).
+many of them hold in the plan's order up to the first that does not (CALVIN's chain length). With
+`discrete_gripper` the gripper command is rounded to the expert's three (open / hold / close).
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ class KitchenEnv(gym.Env):
         episode_length: int | None = None,
         render_mode: str = "rgb_array",
         render_stride: int = 1,
+        discrete_gripper: bool = False,
     ):
         self.cameras = check_env_options(cameras, image_size, episode_length, render_stride)
         self._task = get_task(task)
@@ -44,6 +46,7 @@ class KitchenEnv(gym.Env):
         self.image_size = image_size
         self.render_mode = render_mode
         self.render_stride = render_stride
+        self.discrete_gripper = discrete_gripper
         self._frame: np.ndarray | None = None
         self._max_episode_steps = self._task.max_steps if episode_length is None else int(episode_length)
         self.scene = KitchenScene()
@@ -81,6 +84,8 @@ class KitchenEnv(gym.Env):
 
     def step(self, action):
         action = np.clip(np.asarray(action, dtype=np.float64).reshape(-1), -1.0, 1.0)
+        if self.discrete_gripper:
+            action[-1] = np.round(action[-1])
         self.scene.step(action)
         self._steps += 1
         success = self._task.success(self.scene)
