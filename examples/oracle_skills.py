@@ -45,10 +45,23 @@ def main() -> None:
         help="start from each demo's initial state but execute the latents of the demo this many places on (0: its "
         "own): do the skills carry over to other object positions, or replay one demo's motion?",
     )
+    parser.add_argument(
+        "--discrete-gripper",
+        action="store_true",
+        help="round the gripper command to open / hold / close, as `lerobot-eval --env.discrete_gripper=true` does",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     result = oracle_success(
-        args.checkpoint, args.demos, args.task, args.episodes, args.slack, args.align, args.policy_every, args.swap
+        args.checkpoint,
+        args.demos,
+        args.task,
+        args.episodes,
+        args.slack,
+        args.align,
+        args.policy_every,
+        args.swap,
+        args.discrete_gripper,
     )
     swapped = f" (each executing the latents of the demo {args.swap} on)" if args.swap else ""
     print(

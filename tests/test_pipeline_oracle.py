@@ -88,7 +88,8 @@ def test_swap_starts_from_each_demo_and_executes_the_next_ones_latents(monkeypat
     monkeypatch.setattr(oracle, "WindowSampler", lambda columns, history, horizon: SimpleNamespace(gather=lambda a: a))
     monkeypatch.setattr(oracle, "skill_starts", lambda columns, horizon: torch.tensor(firsts))
     monkeypatch.setattr(oracle, "load_kitchen_meta", lambda root: meta)
-    monkeypatch.setattr(oracle, "KitchenEnv", lambda task: env)
+    made = []
+    monkeypatch.setattr(oracle, "KitchenEnv", lambda task, discrete_gripper: made.append(discrete_gripper) or env)
     monkeypatch.setattr(oracle, "get_task", lambda task: SimpleNamespace(goals=["goal"]))
 
     for swap, sources in [(0, [0, 1, 2]), (1, [1, 2, 0]), (2, [2, 0, 1])]:
@@ -96,3 +97,5 @@ def test_swap_starts_from_each_demo_and_executes_the_next_ones_latents(monkeypat
         oracle.oracle_success(oracle.Path("x"), oracle.Path("demos"), "task", slack=1.0, swap=swap, log=lambda *a: None)
         assert env.resets == [0.0, 1.0, 2.0], swap
         assert encoded == [firsts[s] + t for s in sources for t in (0, 5)], swap
+    oracle.oracle_success(oracle.Path("x"), oracle.Path("demos"), "task", discrete_gripper=True, log=lambda *a: None)
+    assert made == [False, False, False, True]  # the env gets the gripper option
