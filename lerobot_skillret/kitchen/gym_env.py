@@ -24,6 +24,7 @@ from lerobot_skillret.kitchen.scene import KitchenScene
 from lerobot_skillret.kitchen.tasks import get_task
 
 RENDER_SIZE = 256
+GRIPPER = O.ACTION_NAMES.index("gripper")  # the command the fingers integrate (`discrete_gripper` rounds it)
 
 
 class KitchenEnv(gym.Env):
@@ -85,7 +86,7 @@ class KitchenEnv(gym.Env):
     def step(self, action):
         action = np.clip(np.asarray(action, dtype=np.float64).reshape(-1), -1.0, 1.0)
         if self.discrete_gripper:
-            action[-1] = np.round(action[-1])
+            action[GRIPPER] = np.round(action[GRIPPER])
         self.scene.step(action)
         self._steps += 1
         success = self._task.success(self.scene)
