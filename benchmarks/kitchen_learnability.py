@@ -291,7 +291,7 @@ def rollout_seeds(episodes: int) -> list[int]:
 
 
 @torch.no_grad()
-def rollouts(model: nn.Module, task: str, episodes: int, discrete_gripper: bool = False) -> dict:
+def rollouts(model: nn.Module, task: str, episodes: int, discrete_gripper: bool = True) -> dict:
     from lerobot_skillret.kitchen.gym_env import KitchenEnv
 
     env = KitchenEnv(task=task, discrete_gripper=discrete_gripper)
@@ -452,6 +452,17 @@ def plot_ladder(folders: dict[str, Path], out: Path) -> Path:
     return out
 
 
+def redo_reason(stored: dict, discrete_gripper: bool) -> str | None:
+    """Why a stored result does not answer this run (None: it does): rolled out from other env seeds, or with the
+    other gripper command (results from before 2026-12-05 lack the key: they ran the continuous one)."""
+    first_seed, discrete = stored["eval_seeds"][0], stored.get("discrete_gripper", False)
+    if first_seed != CALIBRATION_SEED0:
+        return f"its result was rolled out from env seeds {first_seed}+, not the calibration's"
+    if discrete != discrete_gripper:
+        return f"its result ran with discrete_gripper={discrete}, this run with {discrete_gripper}"
+    return None
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tasks", nargs="*", default=sorted(TASKS, key=lambda t: (TASKS[t].level, t)))
@@ -471,8 +482,10 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--discrete-gripper",
-        action="store_true",
-        help="roll out with the env's gripper command rounded to open / hold / close (`--env.discrete_gripper`)",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="roll out with the gripper command rounded to open / hold / close, the env's default "
+        "(`--no-discrete-gripper`: the continuous command the published calibration used)",
     )
     parser.add_argument("--workers", type=int, default=1, help="simulation workers of the demo generator")
     parser.add_argument("--data-dir", type=Path, default=ROOT / "outputs" / "learnability")
@@ -495,11 +508,11 @@ def main() -> None:
         for task in args.tasks:
             out = args.results / f"{task}.json"
             if out.exists() and not args.force:
-                first_seed = json.loads(out.read_text())["eval_seeds"][0]
-                if first_seed == CALIBRATION_SEED0:
+                reason = redo_reason(json.loads(out.read_text()), args.discrete_gripper)
+                if reason is None:
                     print(f"{task}: done already ({out}); --force to redo", flush=True)
                     continue
-                print(f"{task}: redone: its result was rolled out from env seeds {first_seed}+, not the calibration's")
+                print(f"{task}: redone: {reason}", flush=True)
             write_json_atomic(out, run_task(task, args))
     if not any(args.results.glob("*.json")):
         parser.error(f"no stored results in {args.results}: run without --table first (or pass --results)")

@@ -47,8 +47,10 @@ def main() -> None:
     )
     parser.add_argument(
         "--discrete-gripper",
-        action="store_true",
-        help="round the gripper command to open / hold / close, as `lerobot-eval --env.discrete_gripper=true` does",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="round the gripper command to open / hold / close, as the env does by default "
+        "(`--no-discrete-gripper`: the continuous command of the results before 2026-12-05)",
     )
     args = parser.parse_args()
     torch.set_num_threads(1)

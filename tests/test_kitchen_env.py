@@ -168,7 +168,9 @@ def test_discrete_gripper_turns_a_small_command_into_a_hold():
         moved[discrete] = float(np.abs(env.scene.gripper_qpos() - start).max())
         env.close()
     assert moved[False] > 0.01 and moved[True] < 0.001, moved  # (a hold still settles the fingers a little)
-    assert PandaKitchenEnv(discrete_gripper=True).gym_kwargs["discrete_gripper"] is True
+    assert PandaKitchenEnv().gym_kwargs["discrete_gripper"] is True  # the default, for every policy
+    assert PandaKitchenEnv(discrete_gripper=False).gym_kwargs["discrete_gripper"] is False
+    assert KitchenEnv("bread_on_plate").discrete_gripper
 
 
 def test_lerobots_make_env_path_builds_the_kitchen():

@@ -4,6 +4,7 @@ the network it trained (same hidden state, same horizon), and the windows must s
 from __future__ import annotations
 
 import importlib.util
+import json
 import os
 import shutil
 import subprocess
@@ -69,6 +70,19 @@ def test_table_rebuilds_the_stored_results_markdown(tmp_path: Path):
     )
     markdown = (tmp_path / "results.md").read_text()
     assert "| light_on |" in markdown and "stale" not in markdown
+
+
+def test_a_stored_result_is_reused_only_for_the_same_seeds_and_gripper_command():
+    """A re-run skips a task only when its stored result answers the same question: the published results from
+    before the discrete gripper became the env's default lack the key and ran the continuous command."""
+    kl = _load()
+    published = json.loads((SCRIPT.parent / "results" / "learnability" / "bc_rnn" / "light_on.json").read_text())
+    assert "discrete_gripper" not in published
+    assert kl.redo_reason(published, discrete_gripper=False) is None
+    assert "discrete_gripper=False" in kl.redo_reason(published, discrete_gripper=True)
+    assert kl.redo_reason({**published, "discrete_gripper": True}, discrete_gripper=True) is None
+    elsewhere = {**published, "eval_seeds": [100_000], "discrete_gripper": True}
+    assert "100000+" in kl.redo_reason(elsewhere, discrete_gripper=True)
 
 
 def test_act_reference_uses_the_benchmark_settings_and_masks_padding():

@@ -97,5 +97,5 @@ def test_swap_starts_from_each_demo_and_executes_the_next_ones_latents(monkeypat
         oracle.oracle_success(oracle.Path("x"), oracle.Path("demos"), "task", slack=1.0, swap=swap, log=lambda *a: None)
         assert env.resets == [0.0, 1.0, 2.0], swap
         assert encoded == [firsts[s] + t for s in sources for t in (0, 5)], swap
-    oracle.oracle_success(oracle.Path("x"), oracle.Path("demos"), "task", discrete_gripper=True, log=lambda *a: None)
-    assert made == [False, False, False, True]  # the env gets the gripper option
+    oracle.oracle_success(oracle.Path("x"), oracle.Path("demos"), "task", discrete_gripper=False, log=lambda *a: None)
+    assert made == [True, True, True, False]  # the env gets the gripper option (rounded by default)

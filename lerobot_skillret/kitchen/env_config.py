@@ -35,9 +35,9 @@ class PandaKitchenEnv(EnvConfig):
     # lerobot-eval renders every step of its first 10 episodes; a stride k re-renders every k steps (videos at fps/k)
     render_stride: int = 1
     # round the gripper command to -1 / 0 / +1 (open / hold / close), the only three the expert and the play data
-    # send; off (the default and the published tables): a learner's small non-zero "hold" integrates in the
-    # gripper and closes the fingers again on an object it has just released (`KitchenEnv`)
-    discrete_gripper: bool = False
+    # send: unrounded, a learner's small non-zero "hold" integrates in the gripper and closes the fingers again on an
+    # object it has just released (`KitchenEnv`). `false` reproduces the tables published before 2026-12-05
+    discrete_gripper: bool = True
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=dict)
 

@@ -3,8 +3,8 @@
 Observations come from `observations.build_observation`; success from the task's predicates; the episode
 terminates on success and is truncated at the task's `max_steps`. The reward is the fraction of the goals unmet at
 reset that are met now (1.0 on success), so a failed rollout still reports how far it got; `info["in_a_row"]` is how
-many of them hold in the plan's order up to the first that does not (CALVIN's chain length). With
-`discrete_gripper` the gripper command is rounded to the expert's three (open / hold / close).
+many of them hold in the plan's order up to the first that does not (CALVIN's chain length). The
+gripper command is rounded to the expert's three (open / hold / close) unless `discrete_gripper=False`.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ class KitchenEnv(gym.Env):
         episode_length: int | None = None,
         render_mode: str = "rgb_array",
         render_stride: int = 1,
-        discrete_gripper: bool = False,
+        discrete_gripper: bool = True,
     ):
         self.cameras = check_env_options(cameras, image_size, episode_length, render_stride)
         self._task = get_task(task)

@@ -96,7 +96,7 @@ def oracle_success(
     align: bool = False,
     policy_every: int = 0,
     swap: int = 0,
-    discrete_gripper: bool = False,
+    discrete_gripper: bool = True,
     log=print,
 ) -> dict:
     """Oracle-skill success of `checkpoint` on the first `episodes` demonstrations of the dataset at `demos`, and
@@ -104,7 +104,7 @@ def oracle_success(
     decoder's normalised units, at every window where a rollout picks a skill). `policy_every`: see
     `oracle_episode` (needs a stage-2 checkpoint: a stage-1 latent policy is untrained). `swap` > 0: rollout i
     starts from demonstration i's initial state but executes the latents of demonstration i + swap (of the first
-    `episodes`, wrapping around). `discrete_gripper`: the env rounds the gripper command to open / hold / close."""
+    `episodes`, wrapping around). `discrete_gripper`: the env rounds the gripper command to open / hold / close (its default)."""
     policy = SkillRetPolicy.from_pretrained(checkpoint).eval()
     config = policy.config
     if policy_every and config.stage != "policy":
