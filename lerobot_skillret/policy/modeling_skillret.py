@@ -239,13 +239,14 @@ class SkillRetPolicy(PreTrainedPolicy):
         return self._training_data
 
     def _skill_loss(
-        self, sources: list[tuple[Batch, "WindowSource"]], decode_pairs: bool = False
+        self, sources: list[tuple[Batch, "WindowSource"]], decode_pairs: bool = False, stage2: bool = False
     ) -> tuple[Tensor, dict[str, Tensor], Tensor]:
         """Algorithm 1's loss over the windows of several (raw batch, its WindowSource) pairs at once.
 
         Each source supplies the temporal pair of its own windows (same episode); `decode_pairs` trains the pairs
-        as windows too (`SkillModel.loss`). Returns the loss, its detached terms, and the encoder means of the
-        sources' windows (in order, pairs excluded), used as stage-2 labels."""
+        as windows too (`SkillModel.loss`). `stage2`: the first source is the target's, whose reconstruction is
+        reported alone too. Returns the loss, its detached terms, and the encoder means of the sources' windows (in
+        order, pairs excluded), used as stage-2 labels."""
         config, device = self.config, self._device()
         windows, pairs, offsets, slow = [], [], [], []
         for raw, source in sources:
@@ -261,8 +262,9 @@ class SkillRetPolicy(PreTrainedPolicy):
         def join(parts: list[dict[str, Tensor]]) -> dict[str, Tensor] | None:
             return {key: torch.cat([p[key] for p in parts]) for key in parts[0]} if parts else None
 
+        target_windows = len(windows[0][ACTION]) if stage2 else None
         loss, terms, means = self.skills.loss(
-            join(windows), join(pairs), torch.cat(offsets), join(slow), decode_pairs=decode_pairs
+            join(windows), join(pairs), torch.cat(offsets), join(slow), decode_pairs, target_windows
         )
         return loss, {name: value.detach() for name, value in terms.items()}, means
 
@@ -277,7 +279,7 @@ class SkillRetPolicy(PreTrainedPolicy):
             sources = [(batch, data.own)]
             if data.prior is not None:
                 sources.append((data.prior.sample(size, device), data.prior))
-            skill_loss, skill_terms, means = self._skill_loss(sources)
+            skill_loss, skill_terms, means = self._skill_loss(sources, stage2=True)
             labels = means[:size].detach()
             loss = loss + skill_loss
             terms.update(skill_terms)

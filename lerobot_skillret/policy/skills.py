@@ -167,6 +167,7 @@ class SkillModel(nn.Module):
         offset: Tensor | None = None,
         slow_pair: Window | None = None,
         decode_pairs: bool = False,
+        target_windows: int | None = None,
     ) -> tuple[Tensor, dict[str, Tensor], Tensor]:
         """L_skill = ||a_hat - a||^2 + beta KL(q || prior) + alpha (d_hat - d)^2 (+ the optional extras).
 
@@ -175,6 +176,9 @@ class SkillModel(nn.Module):
         `decode_pairs`: the pairs are trained windows too (reconstruction and KL), not only the temporal term's
         second input. They are encoded either way, so this trains twice the windows for a third more compute.
         Reconstruction: squared error summed over action dimensions, averaged over valid steps only.
+        `target_windows`: how many leading windows are the target's (stage 2 fine-tunes on target and prior windows
+        at once); their reconstruction is also reported alone, as `target_reconstruction_loss`, since the prior's
+        windows can dominate the joint term.
         Returns the loss, its terms, and the encoder means of `window` (B, latent).
         """
         config = self.config
@@ -189,12 +193,16 @@ class SkillModel(nn.Module):
 
         z = mean + torch.randn_like(mean) * torch.exp(0.5 * log_var) if self.training else mean
         squared, valid = self.action_error(z, decoded)
-        reconstruction = (squared * valid).sum() / valid.sum().clamp_min(1.0)
+        masked = squared * valid
+        reconstruction = masked.sum() / valid.sum().clamp_min(1.0)
 
         prior_mean, prior_log_var = self.prior(decoded)
         kl = gaussian_kl(mean, log_var, prior_mean, prior_log_var).mean()
         total = reconstruction + config.kl_weight * kl
         terms = {"reconstruction_loss": reconstruction, "kl_loss": kl}
+        if target_windows is not None:
+            target = slice(0, target_windows)
+            terms["target_reconstruction_loss"] = masked[target].sum() / valid[target].sum().clamp_min(1.0)
 
         if pair is not None:
             if offset is None:
