@@ -386,7 +386,9 @@ def table(folder: Path) -> str:
         f"Reference: {'; '.join(references)}. Epochs marked * stopped at a cap (epochs or wall time), not at the "
         "plateau rule: check its loss curve. Rollouts from env seeds "
         f"{CALIBRATION_SEED0}+ (kitchen.seeds.CALIBRATION_SEED0); rollouts marked † were from another range (the "
-        "benchmark's evaluation seeds, before calibration had its own): re-run that task to replace them.",
+        "benchmark's evaluation seeds, before calibration had its own): re-run that task to replace them. Rollouts "
+        "marked ‡ sent the continuous gripper command (before 2026-12-05); the others round it to open / hold / "
+        "close, the env's default.",
         "",
         "| level | task | BC success | progress | rollouts | epochs | final loss | train min | demo length (median) "
         "| expert | in a row >= 1 / 2 / ... |",
@@ -396,7 +398,7 @@ def table(folder: Path) -> str:
         chain = " / ".join(f"{100 * x:.0f}" for x in r.get("in_a_row_at_least", [])) or "-"
         lines.append(
             f"| {r['level']} | {r['task']} | {100 * r['success']:.0f} % | {100 * r['progress']:.0f} % | {r['rollouts']}"
-            f"{'' if r['eval_seeds'][0] == CALIBRATION_SEED0 else '†'} "
+            f"{'' if r['eval_seeds'][0] == CALIBRATION_SEED0 else '†'}{'' if r.get('discrete_gripper') else '‡'} "
             f"| {r['epochs']}{'' if r.get('stopped_by', 'plateau') == 'plateau' else '*'} | {r['final_loss']:.1e} | {r['train_s'] / 60:.1f} | {r['demos']['length_min_median_max'][1]} "
             f"| {r['demos']['expert_success']} | {chain} |"
         )

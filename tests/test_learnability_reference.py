@@ -6,7 +6,6 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -58,9 +57,14 @@ def test_mlp_actor_runs_the_first_actions_of_each_chunk():
 
 
 def test_table_rebuilds_the_stored_results_markdown(tmp_path: Path):
-    """`--table` (no training) rewrites results.md from the stored task results, as its help says."""
-    published = SCRIPT.parent / "results" / "learnability" / "bc_rnn" / "light_on.json"
-    shutil.copy(published, tmp_path / "light_on.json")
+    """`--table` (no training) rewrites results.md from the stored task results, as its help says, and marks the
+    rows rolled out with the continuous gripper command (results from before 2026-12-05 lack the key)."""
+    published = json.loads((SCRIPT.parent / "results" / "learnability" / "bc_rnn" / "light_on.json").read_text())
+    continuous = {key: value for key, value in published.items() if key != "discrete_gripper"}
+    (tmp_path / "light_on.json").write_text(json.dumps({**continuous, "task": "light_on"}))
+    (tmp_path / "open_drawer.json").write_text(
+        json.dumps({**published, "task": "open_drawer", "discrete_gripper": True})
+    )
     (tmp_path / "results.md").write_text("stale\n")
     subprocess.run(
         [sys.executable, str(SCRIPT), "--reference", "rnn", "--table", "--results", str(tmp_path)],
@@ -69,15 +73,17 @@ def test_table_rebuilds_the_stored_results_markdown(tmp_path: Path):
         env={**os.environ, "MPLBACKEND": "Agg"},
     )
     markdown = (tmp_path / "results.md").read_text()
-    assert "| light_on |" in markdown and "stale" not in markdown
+    assert "stale" not in markdown
+    rows = {line.split(" | ")[1]: line for line in markdown.splitlines() if line.startswith("| 1 |")}
+    assert " | 50‡ | " in rows["light_on"] and " | 50 | " in rows["open_drawer"]
 
 
 def test_a_stored_result_is_reused_only_for_the_same_seeds_and_gripper_command():
     """A re-run skips a task only when its stored result answers the same question: the published results from
     before the discrete gripper became the env's default lack the key and ran the continuous command."""
     kl = _load()
-    published = json.loads((SCRIPT.parent / "results" / "learnability" / "bc_rnn" / "light_on.json").read_text())
-    assert "discrete_gripper" not in published
+    stored = json.loads((SCRIPT.parent / "results" / "learnability" / "bc_rnn" / "light_on.json").read_text())
+    published = {key: value for key, value in stored.items() if key != "discrete_gripper"}  # as before 2026-12-05
     assert kl.redo_reason(published, discrete_gripper=False) is None
     assert "discrete_gripper=False" in kl.redo_reason(published, discrete_gripper=True)
     assert kl.redo_reason({**published, "discrete_gripper": True}, discrete_gripper=True) is None
