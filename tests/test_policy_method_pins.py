@@ -65,12 +65,16 @@ def test_stage2_target_labels_are_the_target_windows_latents(prior_root, target_
         predicted = policy.latent_policy(policy._history(batch), torch.full((6,), TARGET_ID))
     expected = float((predicted - labels).pow(2).sum(-1).mean())
     assert info["policy_target_loss"] == pytest.approx(expected, rel=1e-5)
-    # the skills' reconstruction of the target windows alone, besides the joint one over target + prior windows
+    # the skills' reconstruction and KL on the target windows alone, besides the joint ones over target + prior windows
+    window = policy._window(batch)
     with torch.no_grad():
-        squared, valid = policy.skills.action_error(labels, policy._window(batch))
+        squared, valid = policy.skills.action_error(labels, window)
+        target_kl = gaussian_kl(*policy.skills.encoder(window), *policy.skills.prior(window)).mean()
     target_reconstruction = float((squared * valid).sum() / valid.sum())
     assert info["target_reconstruction_loss"] == pytest.approx(target_reconstruction, rel=1e-5)
     assert info["reconstruction_loss"] != pytest.approx(target_reconstruction, rel=1e-3)
+    assert info["target_kl_loss"] == pytest.approx(float(target_kl), rel=1e-5)
+    assert info["kl_loss"] != pytest.approx(float(target_kl), rel=1e-3)
 
 
 def test_history_is_prefilled_with_the_first_observation(prior_root):

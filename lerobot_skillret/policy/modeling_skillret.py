@@ -244,8 +244,8 @@ class SkillRetPolicy(PreTrainedPolicy):
         """Algorithm 1's loss over the windows of several (raw batch, its WindowSource) pairs at once.
 
         Each source supplies the temporal pair of its own windows (same episode); `decode_pairs` trains the pairs
-        as windows too (`SkillModel.loss`). `stage2`: the first source is the target's, whose reconstruction is
-        reported alone too. Returns the loss, its detached terms, and the encoder means of the sources' windows (in
+        as windows too (`SkillModel.loss`). `stage2`: the first source is the target's, whose reconstruction and KL
+        are reported alone too. Returns the loss, its detached terms, and the encoder means of the sources' windows (in
         order, pairs excluded), used as stage-2 labels."""
         config, device = self.config, self._device()
         windows, pairs, offsets, slow = [], [], [], []

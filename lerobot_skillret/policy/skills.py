@@ -177,8 +177,8 @@ class SkillModel(nn.Module):
         second input. They are encoded either way, so this trains twice the windows for a third more compute.
         Reconstruction: squared error summed over action dimensions, averaged over valid steps only.
         `target_windows`: how many leading windows are the target's (stage 2 fine-tunes on target and prior windows
-        at once); their reconstruction is also reported alone, as `target_reconstruction_loss`, since the prior's
-        windows can dominate the joint term.
+        at once); their reconstruction and KL are also reported alone (`target_reconstruction_loss`,
+        `target_kl_loss`), since the prior's windows can dominate the joint terms.
         Returns the loss, its terms, and the encoder means of `window` (B, latent).
         """
         config = self.config
@@ -197,12 +197,14 @@ class SkillModel(nn.Module):
         reconstruction = masked.sum() / valid.sum().clamp_min(1.0)
 
         prior_mean, prior_log_var = self.prior(decoded)
-        kl = gaussian_kl(mean, log_var, prior_mean, prior_log_var).mean()
+        kl_per_window = gaussian_kl(mean, log_var, prior_mean, prior_log_var)
+        kl = kl_per_window.mean()
         total = reconstruction + config.kl_weight * kl
         terms = {"reconstruction_loss": reconstruction, "kl_loss": kl}
         if target_windows is not None:
             target = slice(0, target_windows)
             terms["target_reconstruction_loss"] = masked[target].sum() / valid[target].sum().clamp_min(1.0)
+            terms["target_kl_loss"] = kl_per_window[target].mean()
 
         if pair is not None:
             if offset is None:
