@@ -440,6 +440,13 @@ def plot_ladder(folders: dict[str, Path], out: Path) -> Path:
     for i, (label, rows) in enumerate(found.items()):
         if any(r.get("stopped_by", "plateau").startswith("wall time") for r in rows.values()):
             label += ", stopped by a wall-time cap"  # then not converged: its bars are lower bounds
+        continuous = sorted(t for t, r in rows.items() if not r.get("discrete_gripper"))
+        if continuous:  # rolled out before the rounded gripper command became the env's default
+            label += (
+                ", continuous gripper"
+                if len(continuous) == len(rows)
+                else f" ({', '.join(continuous)}: continuous gripper)"
+            )
         xs = [j + (i - (len(found) - 1) / 2) * width for j, t in enumerate(tasks) if t in rows]
         axis.bar(xs, [100 * rows[t]["success"] for t in tasks if t in rows], width, label=label)
     axis.axhspan(15, 50, color="grey", alpha=0.15, label="multi-step goal: 15-50 %")
