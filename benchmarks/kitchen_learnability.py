@@ -379,6 +379,12 @@ def curve_points(curve: list[float], points: int = 100) -> dict:
     return {"loss_curve_epochs": epochs, "loss_curve": [curve[e] for e in epochs]}
 
 
+def ran_discrete_gripper(result: dict) -> bool:
+    """Whether a stored result's rollouts rounded the gripper command (results from before 2026-12-05 lack the key:
+    they sent the continuous one)."""
+    return result.get("discrete_gripper", False)
+
+
 def table(folder: Path) -> str:
     rows = sorted((json.loads(p.read_text()) for p in folder.glob("*.json")), key=lambda r: (r["level"], r["task"]))
     references = sorted({r["reference"].split(", batch")[0] for r in rows})
@@ -398,7 +404,7 @@ def table(folder: Path) -> str:
         chain = " / ".join(f"{100 * x:.0f}" for x in r.get("in_a_row_at_least", [])) or "-"
         lines.append(
             f"| {r['level']} | {r['task']} | {100 * r['success']:.0f} % | {100 * r['progress']:.0f} % | {r['rollouts']}"
-            f"{'' if r['eval_seeds'][0] == CALIBRATION_SEED0 else '†'}{'' if r.get('discrete_gripper') else '‡'} "
+            f"{'' if r['eval_seeds'][0] == CALIBRATION_SEED0 else '†'}{'' if ran_discrete_gripper(r) else '‡'} "
             f"| {r['epochs']}{'' if r.get('stopped_by', 'plateau') == 'plateau' else '*'} | {r['final_loss']:.1e} | {r['train_s'] / 60:.1f} | {r['demos']['length_min_median_max'][1]} "
             f"| {r['demos']['expert_success']} | {chain} |"
         )
@@ -440,7 +446,7 @@ def plot_ladder(folders: dict[str, Path], out: Path) -> Path:
     for i, (label, rows) in enumerate(found.items()):
         if any(r.get("stopped_by", "plateau").startswith("wall time") for r in rows.values()):
             label += ", stopped by a wall-time cap"  # then not converged: its bars are lower bounds
-        continuous = sorted(t for t, r in rows.items() if not r.get("discrete_gripper"))
+        continuous = sorted(t for t, r in rows.items() if not ran_discrete_gripper(r))
         if continuous:  # rolled out before the rounded gripper command became the env's default
             label += (
                 ", continuous gripper"
@@ -464,7 +470,7 @@ def plot_ladder(folders: dict[str, Path], out: Path) -> Path:
 def redo_reason(stored: dict, discrete_gripper: bool) -> str | None:
     """Why a stored result does not answer this run (None: it does): rolled out from other env seeds, or with the
     other gripper command (results from before 2026-12-05 lack the key: they ran the continuous one)."""
-    first_seed, discrete = stored["eval_seeds"][0], stored.get("discrete_gripper", False)
+    first_seed, discrete = stored["eval_seeds"][0], ran_discrete_gripper(stored)
     if first_seed != CALIBRATION_SEED0:
         return f"its result was rolled out from env seeds {first_seed}+, not the calibration's"
     if discrete != discrete_gripper:
