@@ -425,6 +425,21 @@ def test_plan_wires_each_ablation(tmp_path: Path) -> None:
     assert not any(a.startswith("--ablation") for a in plan.retrieval_stage("cook", "skillret", 0).command)
 
 
+def test_a_skillret_variant_trains_with_its_own_option_over_the_configs(tmp_path: Path) -> None:
+    """skillret_gamma_0.15 is skillret with one stage-2 option; the method's value wins over the config's
+    `policy.args` (lerobot-train keeps the last of a repeated option)."""
+    policy = TrainSpec(args={"policy.retrieved_weight": 1.0})
+    plan = Plan(
+        PipelineConfig(output_dir=str(tmp_path), tasks=["cook"], methods=["skillret_gamma_0.15"], policy=policy)
+    )
+    command = plan.train_stage(Cell("skillret_gamma_0.15", "cook", 0)).command
+    weights = [a for a in command if a.startswith("--policy.retrieved_weight=")]
+    assert weights == ["--policy.retrieved_weight=1.0", "--policy.retrieved_weight=0.15"]
+    assert "--policy.use_retrieval=true" in command and "prior_seed0" in " ".join(command)
+    skillret = plan.train_stage(Cell("skillret", "cook", 0)).command
+    assert [a for a in skillret if a.startswith("--policy.retrieved_weight=")] == ["--policy.retrieved_weight=1.0"]
+
+
 def test_a_method_is_one_registry_entry(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A new row of the table (here: the paper's 2 % retrieval) needs nothing but its `Method` entry."""
     from lerobot_skillret.pipeline import methods

@@ -24,6 +24,8 @@ class Method:
     pretrain_on_prior: bool = False
     # the pipeline config's `baselines.<key>` sections (lerobot-train options) the method needs
     baselines: tuple[str, ...] = field(default=())
+    # stage-2 lerobot-train options that define a skillret variant (after the config's `policy.args`, so they win)
+    policy_args: dict[str, Any] = field(default_factory=dict)
 
     @property
     def is_skillret(self) -> bool:
@@ -40,6 +42,15 @@ METHODS: dict[str, Method] = {
     for m in (
         # the method and its ablations (seed A.4 / Table 3)
         Method("skillret", "skills from the prior, the r closest prior windows retrieved", "prior", {}),
+        # gamma, the retrieved windows' weight in the policy loss: the seed uses 1.0 (the default) in simulation and
+        # 0.15 on its real robot; here 0.15 led on fish_and_burner, not on setup_pan (benchmarks/results/README.md, part 3)
+        Method(
+            "skillret_gamma_0.15",
+            "skillret with the retrieved windows' policy loss weighted 0.15 (the seed's real-robot gamma)",
+            "prior",
+            {},
+            policy_args={"policy.retrieved_weight": 0.15},
+        ),
         Method("no_retrieval", "skills from the prior, no retrieved windows", "prior"),
         Method("all_retrieval", "skills from the prior, every prior window retrieved", "prior", {"ablation": "all"}),
         Method("random_retrieval", "skills from the prior, r random prior windows", "prior", {"ablation": "random"}),

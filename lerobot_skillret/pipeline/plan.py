@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import hashlib
 import sys
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -128,7 +129,17 @@ class Plan:
         return any(METHODS[m].reads_prior for m in self.cfg.methods)
 
     # --- training -----------------------------------------------------------------------------------------
-    def _train(self, name: str, output: Path, dataset_root: Path, spec: TrainSpec, seed: int, head: list[str]) -> Stage:
+    def _train(
+        self,
+        name: str,
+        output: Path,
+        dataset_root: Path,
+        spec: TrainSpec,
+        seed: int,
+        head: list[str],
+        tail: Sequence[str] = (),
+    ) -> Stage:
+        """`lerobot-train` with `head` (what the stage is), the spec's budget and options, then `tail` (last wins)."""
         stage = Stage(name, output)
         stage.command = [
             str(BIN / "lerobot-train"),
@@ -147,6 +158,7 @@ class Plan:
             "--policy.push_to_hub=false",
             *([f"--config_path={Path(spec.config_path).resolve()}"] if spec.config_path else []),
             *cli_args(spec.args),
+            *tail,
         ]
         if spec.config_path:  # the command names the file, not what it says: an edited file must not be reused
             digest = hashlib.sha256(Path(spec.config_path).read_bytes()).hexdigest()[:16]
@@ -252,7 +264,7 @@ class Plan:
                     "--policy.use_retrieval=true",
                     f"--policy.retrieval_path={self.retrieval_path(cell.task, cell.method, seed)}",
                 ]
-        return self._train(name, out, target, self.cfg.policy, seed, head)
+        return self._train(name, out, target, self.cfg.policy, seed, head, cli_args(m.policy_args))
 
     # --- evaluation ---------------------------------------------------------------------------------------
     def checkpoints(self, cell: Cell) -> list[tuple[int, Path]]:
