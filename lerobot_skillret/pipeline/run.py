@@ -2,7 +2,7 @@
 
     skillret-pipeline run --config configs/pipeline/demo.yaml      # generate -> skills -> retrieval -> policy -> eval
     skillret-pipeline heldout --config configs/pipeline/benchmark.yaml  # offline held-out error of trained cells
-    skillret-pipeline table --results benchmarks/results/benchmark # markdown table + bar plot from raw eval JSONs
+    skillret-pipeline table --results benchmarks/results/comparison # markdown table + bar plot from raw eval JSONs
 
 Every stage runs a stock CLI (skillret-generate, lerobot-train, skillret-retrieve, lerobot-eval) as a subprocess.
 Finished stages are skipped on re-run, so an interrupted run is continued by running the same command again.
@@ -210,8 +210,8 @@ def main(argv: list[str] | None = None) -> None:
     table_p.add_argument(
         "--results",
         type=Path,
-        default=Path("benchmarks/results/benchmark"),
-        help="folder holding <method>/<task>/seed<s>/cell.json (default: benchmarks/results/benchmark)",
+        default=Path("benchmarks/results/comparison"),
+        help="folder holding <method>/<task>/seed<s>/cell.json (default: benchmark.yaml's results_dir, %(default)s)",
     )
     args, rest = parser.parse_known_args(argv)
     if args.command == "table" and rest:
@@ -244,7 +244,7 @@ def main(argv: list[str] | None = None) -> None:
             parser.exit(
                 2,
                 f"skillret-pipeline: no <method>/<task>/seed<s>/cell.json under {args.results} ({hint}pass a "
-                "results_dir, e.g. benchmarks/results/benchmark); nothing written.\n",
+                "results_dir, e.g. benchmarks/results/comparison); nothing written.\n",
             )
         print(write_report(cells, args.results, collect(args.results, PUBLISHED_HELDOUT)))
 
