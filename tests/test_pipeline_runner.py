@@ -438,6 +438,10 @@ def test_a_skillret_variant_trains_with_its_own_option_over_the_configs(tmp_path
     assert "--policy.use_retrieval=true" in command and "prior_seed0" in " ".join(command)
     skillret = plan.train_stage(Cell("skillret", "cook", 0)).command
     assert [a for a in skillret if a.startswith("--policy.retrieved_weight=")] == ["--policy.retrieved_weight=1.0"]
+    # it retrieves as skillret does, so it trains on skillret's retrieval file rather than computing it again
+    assert plan.retrieval_path("cook", "skillret_gamma_0.15", 0) == plan.retrieval_path("cook", "skillret", 0)
+    assert plan.retrieval_stage("cook", "skillret_gamma_0.15", 0).name == "retrieval/cook_skillret_seed0"
+    assert plan.retrieval_path("cook", "random_retrieval", 0) != plan.retrieval_path("cook", "skillret", 0)
 
 
 def test_a_method_is_one_registry_entry(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -76,3 +76,10 @@ METHODS: dict[str, Method] = {
         ),
     )
 }
+
+
+def retrieval_owner(name: str) -> str:
+    """The first method that retrieves exactly as `name` does (same skills, same options): variants that differ only
+    in stage 2, such as skillret_gamma_0.15, train on its retrieval file instead of computing the same one again."""
+    method = METHODS[name]
+    return next(m.name for m in METHODS.values() if (m.skills, m.retrieval) == (method.skills, method.retrieval))

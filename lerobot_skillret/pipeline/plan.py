@@ -4,7 +4,8 @@ Layout of the output folder (every path is an artifact; a stage is skipped when 
 
     data/play, data/demos_<task>                        LeRobotDatasets (skillret-generate)
     skills/prior_seed<s>, skills/target_<task>_seed<s>  stage-1 runs (lerobot-train, stage=skills)
-    retrieval/<task>_<method>_seed<s>/                  retrieval.safetensors + report/ (skillret-retrieve)
+    retrieval/<task>_<method>_seed<s>/                  retrieval.safetensors + report/ (skillret-retrieve; one per
+                                                        set of retrieval options: retrieval_owner)
     train/<method>/<task>/seed<s>                       stage-2 / baseline runs (lerobot-train)
     eval/<method>/<task>/seed<s>/step<k>                lerobot-eval outputs (eval_info.json, videos/)
     heldout/seed<g>_n<n>/demos_<task>                   held-out demos (generation seed g, n episodes)
@@ -25,7 +26,7 @@ from typing import Any
 from lerobot_skillret.kitchen.fingerprint import kitchen_fingerprint
 from lerobot_skillret.kitchen.seeds import EVAL_SEED0
 from lerobot_skillret.pipeline.config import PipelineConfig, TrainSpec
-from lerobot_skillret.pipeline.methods import METHODS
+from lerobot_skillret.pipeline.methods import METHODS, retrieval_owner
 from lerobot_skillret.pipeline.stages import Stage
 from lerobot_skillret.retrieval.cli import as_arguments
 
@@ -177,8 +178,9 @@ class Plan:
         return self._train(f"skills/{out.name}", out, data, self.cfg.skills, seed, head)
 
     def retrieval_dir(self, task: str, method: str, seed: int) -> Path:
-        """One folder per retrieval: the file stage 2 reads and its report, published together."""
-        return self.root / "retrieval" / f"{task}_{method}_seed{seed}"
+        """One folder per retrieval: the file stage 2 reads and its report, published together; methods that
+        retrieve alike share it (`retrieval_owner`)."""
+        return self.root / "retrieval" / f"{task}_{retrieval_owner(method)}_seed{seed}"
 
     def retrieval_path(self, task: str, method: str, seed: int) -> Path:
         return self.retrieval_dir(task, method, seed) / "retrieval.safetensors"
