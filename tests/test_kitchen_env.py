@@ -252,3 +252,30 @@ def test_item_geoms_take_their_sizes_from_layout():
         size = model.geom_size[geom]
         assert np.allclose(size, expected), (name, size, expected)
     env.close()
+
+
+def test_an_item_resting_on_the_plate_neither_sinks_nor_spins():
+    """A box on a cylinder got one contact point: the bread sank ~5 mm into the plate and spun there (180 degrees in
+    ~250 steps), an orientation play data never shows (the prior's skills read it 100 stds out of range)."""
+    from lerobot_skillret.kitchen import layout
+    from lerobot_skillret.kitchen.gym_env import KitchenEnv
+    from lerobot_skillret.kitchen.sampling import sample_poses
+    from lerobot_skillret.kitchen.tasks import get_task
+
+    env = KitchenEnv("breakfast")
+    scene = env.scene
+    rng = np.random.default_rng(0)
+    poses, joints = sample_poses(get_task("breakfast"), rng)
+    plate_x, plate_y = layout.FIXTURES["serving"]
+    poses["bread"] = (plate_x, plate_y, layout.item_rest_z("bread") + 0.01, 0.0)
+    scene.reset_to(poses, joints, rng)
+    for _ in range(200):
+        scene.step(np.zeros(7))
+    w, _, _, z = scene.body_quat("bread")
+    yaw = 2 * np.arctan2(z, w)
+    plate = scene.sim.model.geom_name2id("plate")
+    plate_top = scene.sim.data.geom_xpos[plate][2] + scene.sim.model.geom_size[plate][1]
+    bottom = scene.body_pos("bread")[2] - layout.ITEMS["bread"].half[2]
+    assert abs(yaw) < 0.01, f"the bread turned {yaw:.3f} rad on the plate"
+    assert bottom > plate_top - 0.001, f"the bread sank {1e3 * (plate_top - bottom):.1f} mm into the plate"
+    env.close()
