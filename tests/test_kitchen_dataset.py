@@ -64,6 +64,9 @@ def test_demos_succeed_and_play_is_labelled(datasets):
     assert labels.min() >= 0 and labels.max() < len(PRIMITIVES)
     counted = {name: int((labels == i).sum()) for i, name in enumerate(PRIMITIVES)}
     assert play["primitive_frames"] == counted and sum(counted.values()) == 120
+    done = sum(entry[-1] == "True" for entry in play["episodes"][0]["primitives"])
+    assert set(play["plan_step_calls"]) >= {"pick_place(milk, placemat_right)", "toggle(burner, on)"}
+    assert sum(play["plan_step_calls"].values()) <= done  # successful calls only
 
 
 def test_reset_to_a_recorded_initial_state_reproduces_the_first_frame(datasets):

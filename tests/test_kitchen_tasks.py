@@ -195,6 +195,22 @@ def test_play_draws_each_primitive_equally_often_whatever_its_number_of_calls():
     assert 0.45 < draws.count("toggle") / len(draws) < 0.55  # uniform over calls would give 1/21
 
 
+def test_play_draws_plan_steps_at_least_half_the_time_and_counts_them():
+    from lerobot_skillret.kitchen.play import PLAN_SHARE, draw_step, plan_coverage, plan_steps
+    from lerobot_skillret.kitchen.tasks import Step
+
+    milk_right = Step("pick_place", ("milk", "placemat_right"))  # breakfast's last step
+    assert milk_right in plan_steps()
+    options = [Step("pick_place", ("milk", f"region{i}")) for i in range(17)] + [milk_right]
+    rng = np.random.default_rng(0)
+    share = np.mean([draw_step(options, rng, plan_steps()) == milk_right for _ in range(2000)])
+    assert 0.4 < PLAN_SHARE < share < PLAN_SHARE + 2 / 18  # uniform arguments alone: 1/18
+    coverage = plan_coverage([[("pick_place", "milk", "placemat_right", True), ("toggle", "light", "on", False)]])
+    assert coverage["pick_place(milk, placemat_right)"] == 1 and coverage["toggle(light, on)"] == 0
+    counts = list(coverage.values())
+    assert len(counts) == len(plan_steps()) and counts == sorted(counts)  # fewest first
+
+
 def test_play_starts_from_every_built_in_task_scene():
     from lerobot_skillret.kitchen.play import play_scene_task
     from lerobot_skillret.kitchen.tasks import LADDER, MULTI_STEP

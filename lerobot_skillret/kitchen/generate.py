@@ -4,7 +4,7 @@ Episodes are simulated in worker processes (seeded per episode, so the output de
 sizes, not on --workers) and written by this process into a temporary folder renamed into place at the end:
 an interrupted run leaves no dataset behind. Besides the LeRobot files the dataset root holds
 `meta/primitives.json` (the names of the `primitive_index` values) and `meta/kitchen.json`: frames per primitive,
-per-episode task, seed, success and initial MuJoCo state (for exact replays), and the generator settings.
+successful calls of each built-in task's plan step (play), per-episode task, seed, success and initial MuJoCo state (for exact replays), and the generator settings.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from lerobot_skillret.files import check_replaceable_dir, staged_dir
 from lerobot_skillret.kitchen import observations as O
 from lerobot_skillret.kitchen.collect import PLAY_TASK_TEXT, Episode, EpisodeJob, episode_jobs, run_episode
 from lerobot_skillret.kitchen.layout import CONTROL_FREQ
+from lerobot_skillret.kitchen.play import plan_coverage
 from lerobot_skillret.kitchen.primitives import PRIMITIVES
 from lerobot_skillret.kitchen.tasks import TASKS
 
@@ -139,7 +140,7 @@ def generate(args: argparse.Namespace) -> Path:
     check_replaceable_dir(root, "meta/info.json", "choose a new --root (--overwrite only replaces a dataset)")
     features = O.dataset_features(tuple(args.cameras), O.DEFAULT_IMAGE_SIZE)
     jobs = episode_jobs(args.kind, args.seed, args.episodes, args.task, args.steps_per_episode, tuple(args.cameras))
-    episodes_meta, attempts, failures, primitive_frames = [], 0, 0, Counter()
+    episodes_meta, attempts, failures, primitive_frames, logs = [], 0, 0, Counter(), []
     with staged_dir(root) as tmp:  # an interrupted run leaves no dataset behind
         dataset = LeRobotDataset.create(
             args.repo_id,
@@ -159,6 +160,7 @@ def generate(args: argparse.Namespace) -> Path:
                 task_text = TASKS[args.task].description if args.kind == "demos" else PLAY_TASK_TEXT
                 _write_episode(dataset, episode, task_text)
                 primitive_frames.update(PRIMITIVES[int(label[0])] for label in episode.frames[O.PRIMITIVE_KEY])
+                logs.append(episode.log)
                 episodes_meta.append(
                     {
                         "episode_index": len(episodes_meta),
@@ -180,12 +182,14 @@ def generate(args: argparse.Namespace) -> Path:
                 f"only {len(episodes_meta)} of {args.episodes} successful demos in {attempts} attempts; "
                 "the scripted expert is failing, check the task"
             )
+        coverage = plan_coverage(logs) if args.kind == "play" else {}
         meta = {
             "kind": args.kind,
             "task": args.task,
             "seed": args.seed,
             "cameras": list(args.cameras),
             "primitive_frames": {name: primitive_frames[name] for name in PRIMITIVES},
+            **({"plan_step_calls": coverage} if coverage else {}),
             "attempts": attempts,
             "failed_attempts": failures,
             "episodes": episodes_meta,
@@ -196,6 +200,10 @@ def generate(args: argparse.Namespace) -> Path:
         print(f"{args.task}: kept {len(episodes_meta)} successful demos of {attempts} attempts ({failures} failed)")
     total = max(sum(primitive_frames.values()), 1)
     print("frames per primitive: " + ", ".join(f"{n} {c} ({c / total:.0%})" for n, c in primitive_frames.items()))
+    if coverage:
+        covered = sum(count > 0 for count in coverage.values())
+        fewest = ", ".join(f"{name} {count}" for name, count in list(coverage.items())[:5])
+        print(f"built-in plan steps done at least once: {covered} of {len(coverage)}; fewest: {fewest}")
     print(f"wrote {root}")
     return root
 
