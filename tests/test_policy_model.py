@@ -791,3 +791,24 @@ def test_each_dataset_id_conditions_its_own_windows(stage1_dir, prior_root, targ
     )
     policy.forward(batch)
     assert calls == [[TARGET_ID] * 5, [RETRIEVED_ID] * 5]
+
+
+def test_stage2_names_target_dimensions_far_outside_the_skills_training_data(prior_root, caplog):
+    """The prior's skills never saw inputs that far out (the bread spinning on the plate read 100 stds out): stage
+    2 says which dimensions, largest first; the stage-1 data itself passes."""
+    from types import SimpleNamespace
+
+    policy = build_policy(tiny_config(), PRIOR_REPO, prior_root)
+    columns = EpisodeColumns.from_dataset(PRIOR_REPO, prior_root)
+    assert policy.warn_outside_skills_range(SimpleNamespace(columns=columns)) == []
+    env = "observation.environment_state"
+    shifted = columns.td[env].clone()
+    shifted[3, 2] += 100.0
+    shifted[5, 1] += 30.0
+    target = SimpleNamespace(
+        columns=SimpleNamespace(td={**{k: columns.td[k] for k in policy.low_dim_keys}, env: shifted})
+    )
+    with caplog.at_level("WARNING"):
+        outside = policy.warn_outside_skills_range(target)
+    assert [name.split(" ")[0] for name in outside] == [f"{env}[2]", f"{env}[1]"]
+    assert f"{env}[2]" in caplog.text and "same simulator version" in caplog.text
