@@ -800,15 +800,13 @@ def test_stage2_names_target_dimensions_far_outside_the_skills_training_data(pri
 
     policy = build_policy(tiny_config(), PRIOR_REPO, prior_root)
     columns = EpisodeColumns.from_dataset(PRIOR_REPO, prior_root)
-    assert policy.warn_outside_skills_range(SimpleNamespace(columns=columns)) == []
+    assert policy.warn_outside_skills_range(columns, prior_root) == []
     env = "observation.environment_state"
     shifted = columns.td[env].clone()
     shifted[3, 2] += 100.0
     shifted[5, 1] += 30.0
-    target = SimpleNamespace(
-        columns=SimpleNamespace(td={**{k: columns.td[k] for k in policy.low_dim_keys}, env: shifted})
-    )
+    target = SimpleNamespace(td={**{k: columns.td[k] for k in policy.low_dim_keys}, env: shifted})
     with caplog.at_level("WARNING"):
-        outside = policy.warn_outside_skills_range(target)
+        outside = policy.warn_outside_skills_range(target, prior_root)
     assert [name.split(" ")[0] for name in outside] == [f"{env}[2]", f"{env}[1]"]
     assert f"{env}[2]" in caplog.text and "same simulator version" in caplog.text

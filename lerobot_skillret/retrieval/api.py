@@ -101,6 +101,7 @@ def retrieve(
 
     prior_columns = EpisodeColumns.from_dataset(prior_repo_id, prior_root)
     target_columns = EpisodeColumns.from_dataset(target_repo_id, target_root)
+    policy.warn_outside_skills_range(target_columns, Path(target_root))
     fingerprints = _fingerprints(pretrained, prior_columns.fingerprint, target_columns.fingerprint)
     candidates = choose_anchors(len(prior_columns), settings.num_prior, generator(settings.seed, STREAM_CANDIDATES))
     targets = choose_anchors(len(target_columns), settings.num_target, generator(settings.seed, STREAM_TARGETS))
