@@ -4,7 +4,8 @@ Episodes are simulated in worker processes (seeded per episode, so the output de
 sizes, not on --workers) and written by this process into a temporary folder renamed into place at the end:
 an interrupted run leaves no dataset behind. Besides the LeRobot files the dataset root holds
 `meta/primitives.json` (the names of the `primitive_index` values) and `meta/kitchen.json`: frames per primitive,
-successful calls of each built-in task's plan step (play), per-episode task, seed, success and initial MuJoCo state (for exact replays), and the generator settings.
+successful calls of each built-in task's plan step (play), per-episode task, seed, success and initial MuJoCo
+state (for exact replays), and the generator settings.
 """
 
 from __future__ import annotations

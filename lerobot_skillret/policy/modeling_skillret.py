@@ -255,7 +255,9 @@ class SkillRetPolicy(PreTrainedPolicy):
         with torch.no_grad():
             inputs = self.low_dim_features({key: target.td[key] for key in self.low_dim_keys})
         extreme = inputs.abs().amax(dim=0)
-        outside = sorted(torch.nonzero(extreme > OUTSIDE_SKILLS_RANGE).flatten().tolist(), key=lambda i: -extreme[i])
+        outside = sorted(
+            torch.nonzero(extreme > OUTSIDE_SKILLS_RANGE).flatten().tolist(), key=lambda i: -float(extreme[i])
+        )
         if not outside:
             return []
         names = self._low_dim_names(root)
