@@ -11,8 +11,9 @@ demonstrations did. This script measures that:
 4. per checkpoint and task: oracle-skill success on --episodes held-out demonstrations, the fraction of sub-goals
    met, and the teacher-forced oracle action error on all of them (`lerobot_skillret.pipeline.oracle`).
 
-Every finished piece is kept: one JSON per (prior size, step, task) in benchmarks/results/skills/, a training run
-in outputs/skill_study/ (a run killed half-way is redone from scratch). A re-run skips what exists.
+Every finished piece is kept: one JSON per (prior size, step, task) in --results (benchmarks/results/skills/), a
+training run in --work (outputs/skill_study/; a run killed half-way is redone from scratch). A re-run skips what
+exists.
 
     MUJOCO_GL=egl python benchmarks/skill_study.py                       # the default study
     MUJOCO_GL=egl python benchmarks/skill_study.py --prior-episodes 48 --tasks light_on --steps 3000
@@ -119,14 +120,15 @@ def evaluate(args: argparse.Namespace) -> None:
     work = args.work.resolve()
     play = play_data(work, args.play_episodes)
     frames = json.loads((play / "meta" / "kitchen.json").read_text()).get("primitive_frames", {})
-    write_json_atomic(RESULTS / "play_primitive_frames.json", {"play": play.name, "frames": frames})
+    results = args.results
+    write_json_atomic(results / "play_primitive_frames.json", {"play": play.name, "frames": frames})
     print(f"play frames per primitive: {frames}", flush=True)
     demos = {task: heldout_demos(work, task, args.episodes) for task in args.tasks}
     for prior in args.prior_episodes:
         run_dir, seconds = train_skills(work, play, prior, args.steps, args.save_every)
         for step, ckpt in checkpoints(run_dir):
             for task in args.tasks:
-                out = RESULTS / f"prior{prior}_step{step}_{task}.json"
+                out = results / f"prior{prior}_step{step}_{task}.json"
                 if out.is_file():
                     continue
                 print(f"oracle skills: prior {prior} episodes, step {step}, {task}", flush=True)
@@ -147,14 +149,14 @@ def evaluate(args: argparse.Namespace) -> None:
                 )
                 write_json_atomic(out, result)
                 print(f"  -> success {result['success']:.0%}, goals {result['goals_met']:.0%}", flush=True)
-    table()
+    table(results)
 
 
-def table() -> None:
+def table(results: Path) -> None:
     """results.md (one row per prior size and step, one column per task, mean per level) and skills.png."""
-    rows = [json.loads(p.read_text()) for p in sorted(RESULTS.glob("prior*_step*_*.json"))]
+    rows = [json.loads(p.read_text()) for p in sorted(results.glob("prior*_step*_*.json"))]
     if not rows:
-        raise SystemExit(f"no results in {RESULTS}; run the study first")
+        raise SystemExit(f"no results in {results}; run the study first")
     tasks = sorted({r["task"] for r in rows}, key=lambda t: (TASKS[t].level, t))
     keys = sorted({(r["prior_episodes"], r["step"]) for r in rows})
     cell = {(r["prior_episodes"], r["step"], r["task"]): r for r in rows}
@@ -182,7 +184,7 @@ def table() -> None:
         lines.append(
             f"| {prior * PLAY_STEPS:,} | {step:,} | " + " | ".join(parts) + f" | {sum(errors) / len(errors):.3f} |"
         )
-    frames = RESULTS / "play_primitive_frames.json"
+    frames = results / "play_primitive_frames.json"
     if frames.is_file():
         counts = json.loads(frames.read_text())["frames"]
         total = max(sum(counts.values()), 1)
@@ -190,12 +192,12 @@ def table() -> None:
             "",
             "Play frames per primitive: " + ", ".join(f"{k} {v:,} ({v / total:.0%})" for k, v in counts.items()),
         ]
-    write_text_atomic(RESULTS / "results.md", "\n".join(lines) + "\n")
+    write_text_atomic(results / "results.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
-    _plot(rows, tasks)
+    _plot(rows, tasks, results)
 
 
-def _plot(rows: list[dict], tasks: list[str]) -> None:
+def _plot(rows: list[dict], tasks: list[str], results: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -213,9 +215,9 @@ def _plot(rows: list[dict], tasks: list[str]) -> None:
     axes[0][0].set_ylabel("oracle-skill success (%)")
     axes[0][-1].legend(fontsize=7, loc="upper left")
     fig.tight_layout()
-    tmp = RESULTS / "skills.png.tmp"
+    tmp = results / "skills.png.tmp"
     fig.savefig(tmp, format="png", dpi=110)
-    os.replace(tmp, RESULTS / "skills.png")
+    os.replace(tmp, results / "skills.png")
 
 
 def main() -> None:
@@ -231,11 +233,17 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=10, help="held-out demos per task (default 10)")
     parser.add_argument("--work", type=Path, default=ROOT / "outputs" / "skill_study", help="data and runs")
     parser.add_argument(
+        "--results",
+        type=Path,
+        default=RESULTS,
+        help=f"one JSON per (prior, step, task), table, plot (default {RESULTS})",
+    )
+    parser.add_argument(
         "--table", action="store_true", help="no training: rebuild results.md and skills.png from the stored results"
     )
     args = parser.parse_args()
     if args.table:
-        table()
+        table(args.results)
         return
     if max(args.prior_episodes) > args.play_episodes:
         parser.error(f"--prior-episodes {max(args.prior_episodes)} > --play-episodes {args.play_episodes}")
