@@ -4,7 +4,9 @@ Every H steps the checkpoint's encoder encodes the demonstration's own window (t
 closed-loop decoder executes it from the demonstration's initial state (`lerobot_skillret.pipeline.oracle`). High
 success here and low success of the trained policy points at the latent policy; low success here points at the
 skill model. With `--swap k` each rollout executes the latents of the demonstration k places on from its own initial
-state: skills that generalise still succeed, latents that replay one demonstration's motion do not.
+state: skills that generalise still succeed, latents that replay one demonstration's motion do not. `--trace` prints,
+per rollout, the demonstration step nearest the robot at every skill and the sub-goals met so far (with
+`--policy-every 1`: where the latent policy's own rollout leaves the demonstration).
 `benchmarks/skill_study.py` runs it over stage-1 training steps, prior sizes and the task ladder.
 
     MUJOCO_GL=egl python examples/oracle_skills.py \\
@@ -52,6 +54,12 @@ def main() -> None:
         help="round the gripper command to open / hold / close, as the env does by default "
         "(`--no-discrete-gripper`: the continuous command of the results before 2026-12-05)",
     )
+    parser.add_argument(
+        "--trace",
+        action="store_true",
+        help="print, at every skill, the demo step nearest the robot's state and the sub-goals met so far: where a "
+        "rollout leaves its demo, stalls, or loops back to retry a step",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
     result = oracle_success(
@@ -64,6 +72,7 @@ def main() -> None:
         args.policy_every,
         args.swap,
         args.discrete_gripper,
+        args.trace,
     )
     swapped = f" (each executing the latents of the demo {args.swap} on)" if args.swap else ""
     print(

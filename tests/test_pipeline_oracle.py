@@ -99,3 +99,34 @@ def test_swap_starts_from_each_demo_and_executes_the_next_ones_latents(monkeypat
         assert encoded == [firsts[s] + t for s in sources for t in (0, 5)], swap
     oracle.oracle_success(oracle.Path("x"), oracle.Path("demos"), "task", discrete_gripper=False, log=lambda *a: None)
     assert made == [True, True, True, False]  # the env gets the gripper option (rounded by default)
+
+
+def test_trace_reports_the_nearest_demo_step_and_goals_met_at_every_skill() -> None:
+    """The robot's state walks 0, 1, 2, ... while the demonstration's frame k observes 1.5 k: at step t the nearest
+    demonstration step is t / 1.5; the one goal is met from step 5 on."""
+    demo = torch.arange(10, dtype=torch.float32)[:, None].repeat(1, 3) * 1.5
+    columns = SimpleNamespace(td={"observation.state": demo})
+
+    class WalkingEnv(Env):
+        def reset(self, options):
+            self.t = 0
+            return {"agent_pos": np.zeros(3, dtype=np.float32)}, {}
+
+        def step(self, action):
+            self.t += 1
+            return {"agent_pos": np.full(3, self.t, dtype=np.float32)}, 0.0, False, False, {"is_success": False}
+
+        def unmet_goals(self):
+            return [] if self.t >= 5 else ["goal"]
+
+    policy = SimpleNamespace(
+        config=SimpleNamespace(horizon=3),
+        reset=lambda: None,
+        low_dim_keys=["observation.state"],
+        low_dim_features=lambda raw: raw["observation.state"],
+        select_action=lambda batch: torch.zeros(1, 7),
+    )
+    sampler = SimpleNamespace(columns=columns)
+    trace: list[tuple[int, int]] = []
+    oracle_episode(policy, WalkingEnv(), sampler, 0, 10, np.zeros(1), slack=1.2, policy_every=1, trace=trace)
+    assert trace == [(0, 0), (2, 0), (4, 1), (6, 1)]  # skills start at t = 0, 3, 6, 9 (12 steps)

@@ -8,7 +8,9 @@ skills that transfer to the target task. With `policy_every` a stage-2 checkpoin
 skills itself (every skill: the policy's own rollout from the demonstrations' initial states), which shows whether
 its latents fail everywhere or only where it has to carry on from its own earlier choices. With `swap` each rollout
 starts from one demonstration's initial state and executes another's latents: whether a skill latent means "pick the
-fish" wherever the fish is, or replays one demonstration's motion.
+fish" wherever the fish is, or replays one demonstration's motion. With `trace` every rollout also reports, at each
+skill, the demonstration step nearest the robot's state and the sub-goals met so far: where a rollout leaves the
+demonstration, stalls, or loops back to retry a step.
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ def oracle_episode(
     slack: float,
     align: bool = False,
     policy_every: int = 0,
+    trace: list[tuple[int, int]] | None = None,
 ) -> tuple[bool, list[str]]:
     """Oracle-skill rollout of the demonstration whose frames start at global index `first`; it may run `slack`
     times the demonstration's length (past its end it keeps executing the last window's skill).
@@ -54,13 +57,18 @@ def oracle_episode(
     The latent is the demonstration's window at the rollout's step t (its clock), or with `align` the window, at
     most 3 H steps ahead of the previous one, whose first observation is closest to the robot's current one (its
     phase): a rollout that lags or leads the demonstration then still gets the skill for where it is. Every
-    `policy_every`-th skill (0: none) is left to the latent policy (`select_action` picks it from the history)."""
+    `policy_every`-th skill (0: none) is left to the latent policy (`select_action` picks it from the history).
+    `trace`, if a list, gets one (nearest demonstration step, sub-goals met) pair per skill."""
     observation, _ = env.reset(options={"initial_state": initial_state})
     horizon, success, at = policy.config.horizon, False, 0
+    unmet_at_reset = len(env.unmet_goals())
     policy.reset()
     for t in range(int(length * slack)):
         batch = preprocess_observation({key: value[None] for key, value in observation.items()})
         skill = t // horizon
+        if trace is not None and t % horizon == 0:
+            nearest = _closest_frame(policy, sampler, batch, first, 0, length - 1)
+            trace.append((nearest, unmet_at_reset - len(env.unmet_goals())))
         if t % horizon == 0 and not (policy_every and skill % policy_every == policy_every - 1):
             at = _closest_frame(policy, sampler, batch, first, at, min(at + 3 * horizon, length - 1)) if align else t
             anchor = torch.tensor([first + min(at, length - 1)])
@@ -97,6 +105,7 @@ def oracle_success(
     policy_every: int = 0,
     swap: int = 0,
     discrete_gripper: bool = True,
+    trace: bool = False,
     log=print,
 ) -> dict:
     """Oracle-skill success of `checkpoint` on the first `episodes` demonstrations of the dataset at `demos`, and
@@ -104,7 +113,8 @@ def oracle_success(
     decoder's normalised units, at every window where a rollout picks a skill). `policy_every`: see
     `oracle_episode` (needs a stage-2 checkpoint: a stage-1 latent policy is untrained). `swap` > 0: rollout i
     starts from demonstration i's initial state but executes the latents of demonstration i + swap (of the first
-    `episodes`, wrapping around). `discrete_gripper`: the env rounds the gripper command to open / hold / close (its default)."""
+    `episodes`, wrapping around). `discrete_gripper`: the env rounds the gripper command to open / hold / close (its
+    default). `trace`: log each rollout's nearest demonstration step and sub-goals met at every skill."""
     policy = SkillRetPolicy.from_pretrained(checkpoint).eval()
     config = policy.config
     if policy_every and config.stage != "policy":
@@ -120,12 +130,25 @@ def oracle_success(
         for start, source in swapped(meta, swap):
             first = int(np.flatnonzero(episode_index == source["episode_index"])[0])
             length = int(episode_end[first]) - first
+            steps: list[tuple[int, int]] | None = [] if trace else None
             success, unmet = oracle_episode(
-                policy, env, sampler, first, length, np.asarray(start["initial_state"]), slack, align, policy_every
+                policy,
+                env,
+                sampler,
+                first,
+                length,
+                np.asarray(start["initial_state"]),
+                slack,
+                align,
+                policy_every,
+                steps,
             )
             rows.append(OracleEpisode(start["episode_index"], length, success, unmet))
             latents = f", latents of demo {source['episode_index']}" if swap else ""
             log(f"  demo {start['episode_index']}{latents}: {length} steps, success={success}, unmet={unmet}")
+            if steps:
+                log(f"    nearest demo step per skill: {' '.join(str(step) for step, _ in steps)}")
+                log(f"    sub-goals met per skill:     {' '.join(str(met) for _, met in steps)}")
     finally:
         env.close()
     goals = len(get_task(task).goals)
