@@ -1,5 +1,5 @@
 """The oracle harness: phase alignment inside its search window; which skills the latent policy chooses; which
-demonstration each rollout starts from and whose latents it executes."""
+demonstration each rollout starts from and whose latents it executes; what the per-skill trace reports."""
 
 from __future__ import annotations
 
