@@ -96,6 +96,11 @@ def test_bad_values_name_the_field(field: str, value: object) -> None:
         SkillRetConfig(device="cpu", **{field: value})
 
 
+def test_decoder_policy_weight_needs_a_decoder_that_trains() -> None:
+    with pytest.raises(ValueError, match=r"`decoder_policy_weight`.*finetune_skills=true"):
+        SkillRetConfig(device="cpu", decoder_policy_weight=1.0, finetune_skills=False)
+
+
 def test_a_prior_root_without_its_repo_id_is_refused_not_dropped() -> None:
     """prior_repo_id=None means "no prior data": with a prior_root set the user meant a prior."""
     with pytest.raises(ValueError, match=r"`prior_repo_id`.*prior_root=null"):

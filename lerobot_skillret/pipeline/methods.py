@@ -51,6 +51,15 @@ METHODS: dict[str, Method] = {
             {},
             policy_args={"policy.retrieved_weight": 0.15},
         ),
+        # not in the seed: the fine-tuned decoder also learns to execute the latent policy's own (detached) skills on
+        # the target windows, against the prior skills' sensitivity to the policy's misses (results part 3, session 40)
+        Method(
+            "skillret_policy_decoder",
+            "skillret whose fine-tuned decoder also executes the latent policy's own skills on the target windows",
+            "prior",
+            {},
+            policy_args={"policy.decoder_policy_weight": 1.0},
+        ),
         Method("no_retrieval", "skills from the prior, no retrieved windows", "prior"),
         Method("all_retrieval", "skills from the prior, every prior window retrieved", "prior", {"ablation": "all"}),
         Method("random_retrieval", "skills from the prior, r random prior windows", "prior", {"ablation": "random"}),

@@ -83,6 +83,9 @@ class SkillRetConfig(PreTrainedConfig):
     inverse_dynamics_weight: float = 0.0  # implementation-only extra: (o_t, o_{t+H-1}) -> z head (code used 0.1)
     policy_action_weight: float = 0.0  # not in the paper: adds the target windows' action error of the policy's
     # skill, decoded along the window, to its latent loss (latent errors weighted by what they do to the actions)
+    decoder_policy_weight: float = 0.0  # not in the paper: stage 2's fine-tuned decoder also learns to execute the
+    # latent policy's own (detached) skills on the target windows, so it tolerates the policy's misses; the policy
+    # itself is still trained on latents only (needs finetune_skills)
     policy_mixtures: int = 0  # not in the paper: 0 regresses one z (the paper); k > 0 fits a k-component Gaussian
     # mixture over z by its likelihood (robomimic's GMM head), so a state that admits several skills is not answered
     # by their average; rollouts take the most probable component's mean
@@ -221,10 +224,13 @@ class SkillRetConfig(PreTrainedConfig):
             "slowness_weight",
             "inverse_dynamics_weight",
             "policy_action_weight",
+            "decoder_policy_weight",
             "grad_clip_norm",
         ):
             if not getattr(self, name) >= 0:
                 fail(name, getattr(self, name), "loss weights and clipping norms must be >= 0")
+        if self.decoder_policy_weight > 0 and not self.finetune_skills:
+            fail("decoder_policy_weight", self.decoder_policy_weight, "it trains the decoder: set finetune_skills=true")
         for name in ("skill_lr", "tc_lr", "policy_lr"):
             if not 0 < getattr(self, name) < math.inf:
                 fail(name, getattr(self, name), "a learning rate must be a finite number > 0")

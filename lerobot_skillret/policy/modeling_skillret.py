@@ -340,6 +340,10 @@ class SkillRetPolicy(PreTrainedPolicy):
             action_loss = self.skills.window_error(predicted, self._window(batch)).mean()
             policy_loss = policy_loss + config.policy_action_weight * action_loss
             terms["policy_action_loss"] = action_loss.detach()
+        if config.decoder_policy_weight > 0:  # the decoder learns to execute the policy's choices; the policy does not
+            decoder_loss = self.skills.window_error(predicted.detach(), self._window(batch)).mean()
+            loss = loss + config.decoder_policy_weight * decoder_loss
+            terms["decoder_policy_loss"] = decoder_loss.detach()
 
         if data.retrieved is not None:
             retrieved, stored = data.retrieved.sample(size, device)
