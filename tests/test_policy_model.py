@@ -247,6 +247,29 @@ def test_stage2_forward_with_retrieval_and_ablations(stage1_dir, prior_root, tar
     assert "reconstruction_loss" not in info and not any(p.requires_grad for p in frozen.skills.parameters())
 
 
+def test_skills_fine_tune_on_the_retrieved_windows_when_asked(stage1_dir, prior_root, target_root, tmp_path):
+    """`skill_finetune_windows="retrieved"`: the skill loss's second half of windows are retrieved ones, not any
+    prior window (Alg. 2, line 17, the default)."""
+    chosen = [1, 9, 30, 77]
+    retrieval = write_retrieval(tmp_path / "ret.safetensors", stage1_dir, prior_root, target_root, chosen)
+    prior = dict(prior_repo_id=PRIOR_REPO, prior_root=str(prior_root), retrieval_path=str(retrieval))
+
+    def skill_anchors(**settings) -> set[int]:
+        policy = stage2_policy(stage1_dir, target_root, **prior, **settings).train()
+        seen: list = []
+        skill_loss = policy._skill_loss
+        policy._skill_loss = lambda sources, **kw: seen.append(sources) or skill_loss(sources, **kw)
+        policy.forward(training_batch(policy.config, TARGET_REPO, target_root))
+        (_, own), (extra, source) = seen[0]
+        assert own is policy._training_data.own and source is policy._training_data.prior
+        return set(extra["index"].reshape(-1).tolist())
+
+    assert skill_anchors(skill_finetune_windows="retrieved") <= set(chosen)
+    assert not skill_anchors() <= set(chosen)
+    with pytest.raises(ValueError, match="`skill_finetune_windows`"):
+        stage2_policy(stage1_dir, target_root, use_retrieval=False, skill_finetune_windows="retrieved")
+
+
 def test_retrieved_labels_and_their_weight(stage1_dir, prior_root, target_root, tmp_path):
     """`stored` labels ignore later encoder updates, `reencode` follows them; gamma scales the retrieved loss only."""
     retrieval = write_retrieval(tmp_path / "ret.safetensors", stage1_dir, prior_root, target_root, [1, 9, 30, 77])

@@ -60,6 +60,15 @@ METHODS: dict[str, Method] = {
             {},
             policy_args={"policy.decoder_policy_weight": 1.0},
         ),
+        # not in the seed: stage 2 fine-tunes the skills on the retrieved windows (and the target's) instead of the
+        # whole prior, so the decoder specialises near the task as the demonstrations' own skills do (session 40)
+        Method(
+            "skillret_retrieved_skills",
+            "skillret whose skills fine-tune on the retrieved windows instead of the whole prior",
+            "prior",
+            {},
+            policy_args={"policy.skill_finetune_windows": "retrieved"},
+        ),
         Method("no_retrieval", "skills from the prior, no retrieved windows", "prior"),
         Method("all_retrieval", "skills from the prior, every prior window retrieved", "prior", {"ablation": "all"}),
         Method("random_retrieval", "skills from the prior, r random prior windows", "prior", {"ablation": "random"}),

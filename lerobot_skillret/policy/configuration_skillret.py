@@ -20,6 +20,7 @@ RETRIEVAL_METRICS = ("l2", "kl")
 RETRIEVED_LATENTS = ("stored", "reencode")
 SKILL_PRIOR_INPUTS = ("endpoints", "first")
 POLICY_SUPERVISION = ("last", "every_step")
+SKILL_FINETUNE_WINDOWS = ("prior", "retrieved")
 RESNETS = ("resnet18", "resnet34", "resnet50", "resnet101", "resnet152")  # torchvision's, each with a 64-channel stem
 SKILL_NORMALIZATION_MODES = (NormalizationMode.IDENTITY, NormalizationMode.MEAN_STD, NormalizationMode.MIN_MAX)
 
@@ -113,6 +114,8 @@ class SkillRetConfig(PreTrainedConfig):
     retrieval_path: str | None = None  # retrieval file written by `skillret-retrieve`
     use_retrieval: bool = True  # False = the paper's "no retrieval" ablation (target windows only)
     finetune_skills: bool = True  # keep training the skill model in stage 2 (Alg. 2, line 17)
+    skill_finetune_windows: str = "prior"  # the windows the skills fine-tune on beside the target's: "prior", any
+    # prior window (Alg. 2, line 17), or "retrieved" (not in the paper): only the retrieved ones, near the task's
     retrieved_latents: str = "stored"  # labels z' of retrieved windows: "stored" in the retrieval file (paper,
     # Alg. 2 line 7) or "reencode" with the current, fine-tuned encoder (public implementation)
     video_backend: str | None = None  # decoder of the camera windows the policy fetches itself (pairs, prior,
@@ -229,6 +232,10 @@ class SkillRetConfig(PreTrainedConfig):
         ):
             if not getattr(self, name) >= 0:
                 fail(name, getattr(self, name), "loss weights and clipping norms must be >= 0")
+        if self.skill_finetune_windows not in SKILL_FINETUNE_WINDOWS:
+            fail("skill_finetune_windows", self.skill_finetune_windows, f"use one of {SKILL_FINETUNE_WINDOWS}")
+        if self.skill_finetune_windows == "retrieved" and not self.use_retrieval:
+            fail("skill_finetune_windows", "retrieved", 'there are no retrieved windows: use "prior"')
         if self.decoder_policy_weight > 0 and not self.finetune_skills:
             fail("decoder_policy_weight", self.decoder_policy_weight, "it trains the decoder: set finetune_skills=true")
         for name in ("skill_lr", "tc_lr", "policy_lr"):

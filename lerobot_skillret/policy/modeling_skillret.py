@@ -313,7 +313,7 @@ class SkillRetPolicy(PreTrainedPolicy):
         return loss, {name: value.detach() for name, value in terms.items()}, means
 
     def _stage2_loss(self, batch: Batch, data: "TrainingData") -> tuple[Tensor, dict[str, float]]:
-        """L_policy on target (id 0) and retrieved (id 1) windows, + L_skill on target and prior windows."""
+        """L_policy on target (id 0) and retrieved (id 1) windows, + L_skill on target and prior (or retrieved) windows."""
         config, device = self.config, self._device()
         size = batch[ACTION].shape[0]
         terms: dict[str, Tensor] = {}
@@ -322,7 +322,10 @@ class SkillRetPolicy(PreTrainedPolicy):
         if config.finetune_skills:
             sources = [(batch, data.own)]
             if data.prior is not None:
-                sources.append((data.prior.sample(size, device), data.prior))
+                if config.skill_finetune_windows == "retrieved" and data.retrieved is not None:
+                    sources.append((data.retrieved.sample(size, device)[0], data.prior))
+                else:
+                    sources.append((data.prior.sample(size, device), data.prior))
             skill_loss, skill_terms, means = self._skill_loss(sources, stage2=True)
             labels = means[:size].detach()
             loss = loss + skill_loss
