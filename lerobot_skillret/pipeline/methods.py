@@ -52,7 +52,8 @@ METHODS: dict[str, Method] = {
             policy_args={"policy.retrieved_weight": 0.15},
         ),
         # not in the seed: the fine-tuned decoder also learns to execute the latent policy's own (detached) skills on
-        # the target windows, against the prior skills' sensitivity to the policy's misses (results part 3, session 40)
+        # the target windows, against the prior skills' sensitivity to the policy's misses; no better on setup_pan
+        # (results part 3, session 40)
         Method(
             "skillret_policy_decoder",
             "skillret whose fine-tuned decoder also executes the latent policy's own skills on the target windows",
@@ -61,7 +62,8 @@ METHODS: dict[str, Method] = {
             policy_args={"policy.decoder_policy_weight": 1.0},
         ),
         # not in the seed: stage 2 fine-tunes the skills on the retrieved windows (and the target's) instead of the
-        # whole prior, so the decoder specialises near the task as the demonstrations' own skills do (session 40)
+        # whole prior, so the decoder specialises near the task as the demonstrations' own skills do; no better on
+        # setup_pan (session 40)
         Method(
             "skillret_retrieved_skills",
             "skillret whose skills fine-tune on the retrieved windows instead of the whole prior",

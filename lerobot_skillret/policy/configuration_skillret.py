@@ -115,7 +115,7 @@ class SkillRetConfig(PreTrainedConfig):
     use_retrieval: bool = True  # False = the paper's "no retrieval" ablation (target windows only)
     finetune_skills: bool = True  # keep training the skill model in stage 2 (Alg. 2, line 17)
     skill_finetune_windows: str = "prior"  # the windows the skills fine-tune on beside the target's: "prior", any
-    # prior window (Alg. 2, line 17), or "retrieved" (not in the paper): only the retrieved ones, near the task's
+    # prior window (Alg. 2, line 17), or "retrieved" (not in the paper): only the retrieved ones, near the task
     retrieved_latents: str = "stored"  # labels z' of retrieved windows: "stored" in the retrieval file (paper,
     # Alg. 2 line 7) or "reencode" with the current, fine-tuned encoder (public implementation)
     video_backend: str | None = None  # decoder of the camera windows the policy fetches itself (pairs, prior,

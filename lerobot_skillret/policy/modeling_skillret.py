@@ -313,7 +313,8 @@ class SkillRetPolicy(PreTrainedPolicy):
         return loss, {name: value.detach() for name, value in terms.items()}, means
 
     def _stage2_loss(self, batch: Batch, data: "TrainingData") -> tuple[Tensor, dict[str, float]]:
-        """L_policy on target (id 0) and retrieved (id 1) windows, + L_skill on target and prior (or retrieved) windows."""
+        """L_policy on target (id 0) and retrieved (id 1) windows, + L_skill on target and prior (or retrieved)
+        windows."""
         config, device = self.config, self._device()
         size = batch[ACTION].shape[0]
         terms: dict[str, Tensor] = {}
