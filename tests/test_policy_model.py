@@ -395,7 +395,7 @@ def test_every_step_supervision_labels_each_history_step_with_its_own_window(sta
     """`policy_supervision="every_step"`: history step t is supervised with the encoder's skill of the window that
     starts at t (LeRobot's own window there) and the LSTM's output after steps ..t (the policy run on the history cut
     at t); steps padded before the episode's start are left out. Anchors at an episode's first frames included."""
-    torch.manual_seed(0)  # the fresh head's init: some draws give a mixture whose every-step and last losses agree
+    torch.manual_seed(0)  # the fresh head is drawn from the global RNG: independent of the tests run before
     policy = stage2_policy(
         stage1_dir, target_root, use_retrieval=False, finetune_skills=False, policy_mixtures=mixtures
     ).train()
