@@ -268,6 +268,11 @@ def test_skills_fine_tune_on_the_retrieved_windows_when_asked(stage1_dir, prior_
     assert not skill_anchors() <= set(chosen)
     with pytest.raises(ValueError, match="`skill_finetune_windows`"):
         stage2_policy(stage1_dir, target_root, use_retrieval=False, skill_finetune_windows="retrieved")
+    empty = write_retrieval(tmp_path / "empty.safetensors", stage1_dir, prior_root, target_root, [])
+    policy = stage2_policy(stage1_dir, target_root, **prior, skill_finetune_windows="retrieved")
+    policy.config.retrieval_path = str(empty)  # a retrieval that kept nothing: the option must not fall back
+    with pytest.raises(ValueError, match=r"selects no window.*skill_finetune_windows=prior"):
+        policy.forward(training_batch(policy.config, TARGET_REPO, target_root))
 
 
 def test_retrieved_labels_and_their_weight(stage1_dir, prior_root, target_root, tmp_path):

@@ -323,7 +323,7 @@ class SkillRetPolicy(PreTrainedPolicy):
         if config.finetune_skills:
             sources = [(batch, data.own)]
             if data.prior is not None:
-                if config.skill_finetune_windows == "retrieved" and data.retrieved is not None:
+                if config.skill_finetune_windows == "retrieved":  # refused without retrieved windows
                     sources.append((data.retrieved.sample(size, device)[0], data.prior))
                 else:
                     sources.append((data.prior.sample(size, device), data.prior))

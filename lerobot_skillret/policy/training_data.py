@@ -135,6 +135,12 @@ class TrainingData:
             checkpoint_fingerprint=config.skills_checkpoint_fingerprint,
         )
         if len(result) == 0:
+            if config.skill_finetune_windows == "retrieved":
+                raise ValueError(
+                    f"The retrieval file {config.retrieval_path} selects no window, so "
+                    '`skill_finetune_windows="retrieved"` has no window to fine-tune the skills on. Retrieve more '
+                    "(a larger --fraction in `skillret-retrieve`) or pass --policy.skill_finetune_windows=prior."
+                )
             logging.warning(
                 "skillret: the retrieval file %s selects no window; training without retrieved data.",
                 config.retrieval_path,
