@@ -77,7 +77,8 @@ def main() -> None:
     swapped = f" (each executing the latents of the demo {args.swap} on)" if args.swap else ""
     print(
         f"oracle-skill success: {result['success']:.0%} of {result['episodes']} demos{swapped}, sub-goals met "
-        f"{result['goals_met']:.0%}, teacher-forced oracle action error {result['oracle_action_error']:.4f}"
+        f"{result['goals_met']:.0%}, teacher-forced oracle action error {result['oracle_action_error']:.4f} (other "
+        f"windows' skills: {result['shuffled_action_error']:.3f})"
     )
 
 

@@ -472,6 +472,13 @@ def test_imitation_error_scores_the_policy_against_the_oracle_skill(stage1_dir, 
     monkeypatch.setattr(policy.latent_policy, "forward", lambda history, ids: policy.encode_skill(window)[0])
     torch.testing.assert_close(policy.imitation_error(window)["policy"], errors["oracle"])
 
+    # `shuffled` decodes other windows' oracle skills: it scores the oracle's error only if the decoder ignores z
+    assert not torch.allclose(errors["shuffled"], errors["oracle"])
+    with torch.no_grad():
+        policy.skills.decoder.lstm.weight_ih_l0[:, : policy.config.latent_dim] = 0.0  # z's input weights
+    blind = policy.imitation_error(window)
+    torch.testing.assert_close(blind["shuffled"], blind["oracle"])
+
 
 def test_stage2_refuses_bad_retrieval_setups(stage1_dir, prior_root, target_root, tmp_path):
     batch = training_batch(tiny_config(stage="policy"), TARGET_REPO, target_root)

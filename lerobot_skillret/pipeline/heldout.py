@@ -4,7 +4,8 @@ Ten rollouts per checkpoint move success in steps of 10 points, too coarse to or
 demonstrations that no run trained on (another generation seed): at every window where a rollout would pick a skill
 (every H steps), the latent policy picks one from the F observations before it and the closed-loop decoder runs it
 along the demonstration's own observations (`SkillRetPolicy.imitation_error`). The oracle skill (the checkpoint's
-encoder on the window itself) gives the floor that the decoder allows.
+encoder on the window itself) gives the floor that the decoder allows; another window's oracle skill (`shuffled`)
+shows how much the decoder needs the skill at all.
 """
 
 from __future__ import annotations
@@ -35,7 +36,8 @@ def skill_starts(columns: EpisodeColumns, horizon: int) -> torch.Tensor:
 
 @torch.no_grad()
 def imitation_errors(checkpoint: Path, columns: EpisodeColumns) -> dict[str, float]:
-    """Mean per-window action error of a stage-2 checkpoint's skills (`policy`) and of the oracle's (`oracle`)."""
+    """Mean per-window action error of a stage-2 checkpoint's skills (`policy`), of the oracle's (`oracle`) and of
+    other windows' oracle skills (`shuffled`)."""
     policy = SkillRetPolicy.from_pretrained(checkpoint).eval()
     config = policy.config
     if config.stage != "policy":

@@ -110,7 +110,8 @@ def oracle_success(
 ) -> dict:
     """Oracle-skill success of `checkpoint` on the first `episodes` demonstrations of the dataset at `demos`, and
     the teacher-forced oracle action error on all of them (squared error summed over action dimensions, in the
-    decoder's normalised units, at every window where a rollout picks a skill). `policy_every`: see
+    decoder's normalised units, at every window where a rollout picks a skill) and the same with other windows'
+    skills (`shuffled`: how much the decoder hangs on its skill). `policy_every`: see
     `oracle_episode` (needs a stage-2 checkpoint: a stage-1 latent policy is untrained). `swap` > 0: rollout i
     starts from demonstration i's initial state but executes the latents of demonstration i + swap (of the first
     `episodes`, wrapping around). `discrete_gripper`: the env rounds the gripper command to open / hold / close (its
@@ -121,7 +122,7 @@ def oracle_success(
         raise ValueError(f"policy_every={policy_every} needs a stage-2 checkpoint; {checkpoint} is `{config.stage}`.")
     columns = EpisodeColumns.from_dataset(f"local/{demos.name}", demos)
     sampler = WindowSampler(columns, history=config.history, horizon=config.horizon)
-    error = float(policy.imitation_error(sampler.gather(skill_starts(columns, config.horizon)))["oracle"].mean())
+    errors = policy.imitation_error(sampler.gather(skill_starts(columns, config.horizon)))
     meta = load_kitchen_meta(demos)["episodes"][:episodes]
     episode_index = columns.td["episode_index"].as_subclass(torch.Tensor).numpy()
     episode_end = columns.td["episode_end"].as_subclass(torch.Tensor).numpy()
@@ -156,6 +157,7 @@ def oracle_success(
         "episodes": len(rows),
         "success": sum(r.success for r in rows) / max(len(rows), 1),
         "goals_met": 1 - sum(len(r.unmet) for r in rows) / max(len(rows) * goals, 1),
-        "oracle_action_error": error,
+        "oracle_action_error": float(errors["oracle"].mean()),
+        "shuffled_action_error": float(errors["shuffled"].mean()),
         "failures": {r.episode_index: r.unmet for r in rows if not r.success},
     }

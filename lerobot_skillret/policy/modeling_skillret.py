@@ -402,14 +402,19 @@ class SkillRetPolicy(PreTrainedPolicy):
 
         `policy`: the latent policy's skill (dataset id = target, as at rollout), decoded closed-loop along the
         window's own observations; `oracle`: the encoder's skill of the window itself, the best any policy over this
-        decoder can do. Squared error summed over action dimensions in the decoder's normalised units, averaged over
-        the valid steps. On held-out demonstrations it compares checkpoints without the noise of a few rollouts."""
+        decoder can do; `shuffled`: the oracle skill of another window of the batch (a fixed permutation), how much
+        the decoder's actions hang on the skill at all (a decoder that acts from the observation alone scores its
+        oracle error here). Squared error summed over action dimensions in the decoder's normalised units, averaged
+        over the valid steps. On held-out demonstrations it compares checkpoints without the noise of a few rollouts."""
         self.normalizer.check_ready()
         target = self._window(window)
         size = target[ACTION].shape[0]
+        oracle = self.skills.encoder(target)[0]
+        permutation = torch.randperm(size, generator=torch.Generator().manual_seed(0)).to(oracle.device)
         skills = {
             "policy": self.latent_policy(self._history(window), torch.full((size,), TARGET_ID, device=self._device())),
-            "oracle": self.skills.encoder(target)[0],
+            "oracle": oracle,
+            "shuffled": oracle[permutation],
         }
         return {name: self.skills.window_error(z, target) for name, z in skills.items()}
 
