@@ -92,12 +92,25 @@ def batches(policy: SkillRetPolicy, root: Path, repo_id: str, batch_size: int, c
     return [{k: v.to(device) if isinstance(v, torch.Tensor) else v for k, v in batch.items()} for batch in out]
 
 
+def optimizer_of(policy: SkillRetPolicy, old: bool = False) -> torch.optim.Optimizer:
+    """The optimizer lerobot-train builds from the policy's preset (fused Adam), or (`old`) the per-tensor Adam of
+    LeRobot's `adam` preset that skillret used before it."""
+    params = policy.get_optim_params()
+    return torch.optim.Adam(params) if old else policy.config.get_optimizer_preset().build(params)
+
+
 def time_training(
-    policy: SkillRetPolicy, data: list[dict], warmup: int = 2, amp: bool = False, loss_of: Callable | None = None
+    policy: SkillRetPolicy,
+    data: list[dict],
+    warmup: int = 2,
+    amp: bool = False,
+    loss_of: Callable | None = None,
+    old_optimizer: bool = False,
 ) -> float:
     """Median seconds per forward + backward + Adam step (`amp`: the forward under bf16 autocast, as lerobot-train
-    runs it with `--policy.use_amp=true` on CPU; `loss_of(batch)`: another loss than `policy.forward`)."""
-    optimizer = torch.optim.Adam(policy.get_optim_params())
+    runs it with `--policy.use_amp=true` on CPU; `loss_of(batch)`: another loss than `policy.forward`;
+    `old_optimizer`: see `optimizer_of`)."""
+    optimizer = optimizer_of(policy, old_optimizer)
     policy.train()
     device = torch.device(policy.config.device)
     sync = torch.cuda.synchronize if device.type == "cuda" else lambda: None
@@ -158,7 +171,7 @@ def stage1_breakdown(policy: SkillRetPolicy, data: list[dict]) -> None:
     dense matmul; then only less LSTM work per window (or other hardware) makes it faster."""
     from torch.profiler import ProfilerActivity, profile
 
-    optimizer = torch.optim.Adam(policy.get_optim_params())
+    optimizer = optimizer_of(policy)
     policy.train()
 
     def step(batch: dict) -> None:
@@ -182,7 +195,7 @@ def stage1_breakdown(policy: SkillRetPolicy, data: list[dict]) -> None:
         elif name in ("aten::mm", "aten::addmm", "aten::bmm"):
             shares["matmuls (MLP heads, encoders)"] += event.self_cpu_time_total
         elif (
-            "Adam" in name
+            "adam" in name.lower()
             or name.startswith("aten::_foreach")
             or name in ("aten::addcdiv_", "aten::lerp_", "aten::sqrt")
         ):
@@ -216,29 +229,31 @@ def pairs_encoded_only(policy: SkillRetPolicy) -> Callable:
 
 
 def stage1_throughput(prior: Path, rounds: int) -> None:
-    """Stage-1 windows per second on one core: the step before 4860f8e (float32, batch 64, the benchmark's)
-    against today's (float32, and bf16 autocast `--policy.use_amp=true` at batch 64 and 128), alternated for
-    `rounds` rounds so that a machine shared with other work slows every setting alike; medians and their ratios
-    to the step before.
+    """Stage-1 windows per second on one core: the step before 4860f8e (float32, batch 64, the benchmark's, with
+    the per-tensor Adam of then) against today's (float32; the same with the old Adam, to show each change's part;
+    and bf16 autocast `--policy.use_amp=true` at batch 64 and 128), alternated for `rounds` rounds so that a machine
+    shared with other work slows every setting alike; medians and their ratios to the step before.
 
     Why these: the step is bound by the LSTMs' float32 arithmetic (see the breakdown), so it gets faster only with
-    less LSTM work per trained window (today's step no longer encodes pairs it does not train) or cheaper
-    arithmetic: oneDNN runs bf16 kernels faster on AVX512-BF16 / AMX cores, and a bigger batch then pays (in
-    float32 it does not: the kernels are already near the core's matmul rate)."""
+    less LSTM work per trained window (today's step no longer encodes pairs it does not train), less work around
+    the LSTMs (the fused Adam) or cheaper arithmetic: oneDNN runs bf16 kernels faster on AVX512-BF16 / AMX cores,
+    and a bigger batch then pays (in float32 it does not: the kernels are already near the core's matmul rate)."""
     before = "before 4860f8e: float32, batch 64"
-    settings = {  # name: (batch, bf16 autocast, the step before)
-        before: (64, False, True),
-        "today: float32, batch 64": (64, False, False),
-        "today: bf16 autocast, batch 64": (64, True, False),
-        "today: bf16 autocast, batch 128": (128, True, False),
+    settings = {  # name: (batch, bf16 autocast, the step before, per-tensor Adam)
+        before: (64, False, True, True),
+        "today's step, old Adam: float32": (64, False, False, True),
+        "today: float32, batch 64": (64, False, False, False),
+        "today: bf16 autocast, batch 64": (64, True, False, False),
+        "today: bf16 autocast, batch 128": (128, True, False, False),
     }
     policy = make_policy(policy_fields("cpu"), prior, "bench/prior")
-    data = {size: batches(policy, prior, "bench/prior", size, 10) for size, _, _ in settings.values()}
+    data = {size: batches(policy, prior, "bench/prior", size, 10) for size, *_ in settings.values()}
     rates: dict[str, list[float]] = {name: [] for name in settings}
     for _ in range(rounds):
-        for name, (size, amp, old) in settings.items():
-            loss_of = pairs_encoded_only(policy) if old else None
-            rates[name].append(size / time_training(policy, data[size], amp=amp, loss_of=loss_of))
+        for name, (size, amp, old_step, old_adam) in settings.items():
+            loss_of = pairs_encoded_only(policy) if old_step else None
+            rate = size / time_training(policy, data[size], amp=amp, loss_of=loss_of, old_optimizer=old_adam)
+            rates[name].append(rate)
     base = statistics.median(rates[before])
     print(f"\n== stage-1 throughput on one core (cpu config, {rounds} alternating rounds; median) ==")
     for name, values in rates.items():

@@ -125,6 +125,9 @@ def test_two_stages_with_lerobot_train_then_lerobot_eval(tmp_path, monkeypatch):
     )
     stage1 = tmp_path / "stage1" / "checkpoints" / "last" / "pretrained_model"
     assert (stage1 / "model.safetensors").is_file()
+    # lerobot-train took the policy's optimizer preset: Adam with torch's fused kernel
+    optimizer = json.loads((stage1 / "train_config.json").read_text())["optimizer"]
+    assert optimizer["type"] == "skillret_adam" and optimizer["fused"] is True
 
     # A retrieval file on that checkpoint (what skillret-retrieve writes), a few prior windows.
     retrieval = write_retrieval(tmp_path / "retrieval.safetensors", stage1, prior, target, [2, 11, 40, 63])
@@ -165,6 +168,31 @@ def test_two_stages_with_lerobot_train_then_lerobot_eval(tmp_path, monkeypatch):
     lerobot_eval.main()
     info = json.loads((tmp_path / "eval" / "eval_info.json").read_text())
     assert info["overall"]["n_episodes"] == 2 and 0.0 <= info["overall"]["pc_success"] <= 100.0
+
+
+@pytest.mark.slow
+def test_stage1_resumes_with_its_optimizer_state(tmp_path):
+    """`--resume=true` re-parses the saved train config, whose optimizer is the plugin's `skillret_adam`, and
+    reloads the fused Adam's state: the run goes on from its last step."""
+    prior = make_synthetic_dataset(tmp_path / "prior", PRIOR_REPO, num_episodes=5, seed=0)
+    out = tmp_path / "stage1"
+    lerobot_train(
+        "--policy.stage=skills",
+        f"--dataset.repo_id={PRIOR_REPO}",
+        f"--dataset.root={prior}",
+        f"--output_dir={out}",
+        *TINY_CLI,
+    )
+    config = out / "checkpoints" / "last" / "pretrained_model" / "train_config.json"
+    result = subprocess.run(
+        [str(BIN / "lerobot-train"), f"--config_path={config}", "--resume=true", "--steps=5"],
+        env=TRAIN_ENV,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-5000:]
+    assert (out / "checkpoints" / "000005" / "training_state" / "optimizer_state.safetensors").is_file()
 
 
 @pytest.mark.slow
