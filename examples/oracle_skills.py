@@ -78,7 +78,8 @@ def main() -> None:
     print(
         f"oracle-skill success: {result['success']:.0%} of {result['episodes']} demos{swapped}, sub-goals met "
         f"{result['goals_met']:.0%}, teacher-forced oracle action error {result['oracle_action_error']:.4f} (other "
-        f"windows' skills: {result['shuffled_action_error']:.3f})"
+        f"windows' skills: {result['shuffled_action_error']:.3f}; the demos' mean action held constant: "
+        f"{result['mean_action_error']:.3f})"
     )
 
 

@@ -81,7 +81,11 @@ def test_swap_starts_from_each_demo_and_executes_the_next_ones_latents(monkeypat
         encode_skill=lambda anchors: (anchors, None),
         execute_skill=lambda anchors: encoded.append(int(anchors[0])),
         select_action=lambda batch: torch.zeros(1, 7),
-        imitation_error=lambda window: {"oracle": torch.zeros(1), "shuffled": torch.ones(1)},
+        imitation_error=lambda window: {
+            "oracle": torch.zeros(1),
+            "shuffled": torch.ones(1),
+            "mean_action": torch.ones(1),
+        },
     )
     monkeypatch.setattr(oracle.SkillRetPolicy, "from_pretrained", lambda checkpoint: policy)
     monkeypatch.setattr(oracle.EpisodeColumns, "from_dataset", lambda repo_id, root: columns)

@@ -6,6 +6,7 @@ import math
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from lerobot.configs.types import FeatureType, NormalizationMode, PolicyFeature
@@ -468,6 +469,13 @@ def test_imitation_error_scores_the_policy_against_the_oracle_skill(stage1_dir, 
     changed = dict(window, action=window["action"].clone())
     changed["action"][window["action_is_pad"]] += 5.0
     torch.testing.assert_close(policy.imitation_error(changed)["oracle"], errors["oracle"])
+    torch.testing.assert_close(policy.imitation_error(changed)["mean_action"], errors["mean_action"])
+    # `mean_action`: the valid steps' mean normalised action held constant, checked against numpy
+    normalised = policy._window(window)
+    actions, valid = normalised["action"].numpy(), normalised["valid"].numpy()
+    mean = actions[valid].mean(axis=0)
+    expected = [((actions[i][valid[i]] - mean) ** 2).sum(axis=-1).mean() for i in range(3)]
+    np.testing.assert_allclose(errors["mean_action"].numpy(), expected, rtol=1e-5)
     # a policy that picked exactly the oracle's skills would score the oracle's error
     monkeypatch.setattr(policy.latent_policy, "forward", lambda history, ids: policy.encode_skill(window)[0])
     torch.testing.assert_close(policy.imitation_error(window)["policy"], errors["oracle"])

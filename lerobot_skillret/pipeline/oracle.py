@@ -111,7 +111,8 @@ def oracle_success(
     """Oracle-skill success of `checkpoint` on the first `episodes` demonstrations of the dataset at `demos`, and
     the teacher-forced oracle action error on all of them (squared error summed over action dimensions, in the
     decoder's normalised units, at every window where a rollout picks a skill) and the same with other windows'
-    skills (`shuffled`: how much the decoder hangs on its skill). `policy_every`: see
+    skills (`shuffled`: how much the decoder hangs on its skill), and of the demos' mean action held constant (the
+    scale of both in this checkpoint's units). `policy_every`: see
     `oracle_episode` (needs a stage-2 checkpoint: a stage-1 latent policy is untrained). `swap` > 0: rollout i
     starts from demonstration i's initial state but executes the latents of demonstration i + swap (of the first
     `episodes`, wrapping around). `discrete_gripper`: the env rounds the gripper command to open / hold / close (its
@@ -159,5 +160,6 @@ def oracle_success(
         "goals_met": 1 - sum(len(r.unmet) for r in rows) / max(len(rows) * goals, 1),
         "oracle_action_error": float(errors["oracle"].mean()),
         "shuffled_action_error": float(errors["shuffled"].mean()),
+        "mean_action_error": float(errors["mean_action"].mean()),
         "failures": {r.episode_index: r.unmet for r in rows if not r.success},
     }

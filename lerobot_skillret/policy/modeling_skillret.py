@@ -404,8 +404,10 @@ class SkillRetPolicy(PreTrainedPolicy):
         window's own observations; `oracle`: the encoder's skill of the window itself, the best any policy over this
         decoder can do; `shuffled`: the oracle skill of another window of the batch (a fixed permutation), how much
         the decoder's actions hang on the skill at all (a decoder that acts from the observation alone scores its
-        oracle error here). Squared error summed over action dimensions in the decoder's normalised units, averaged
-        over the valid steps. On held-out demonstrations it compares checkpoints without the noise of a few rollouts."""
+        oracle error here); `mean_action`: the windows' mean action held constant, the scale of the others (each
+        checkpoint's own action statistics set its units, so compare errors across checkpoints as ratios to it).
+        Squared error summed over action dimensions in the decoder's normalised units, averaged over the valid
+        steps. On held-out demonstrations it compares checkpoints without the noise of a few rollouts."""
         self.normalizer.check_ready()
         target = self._window(window)
         size = target[ACTION].shape[0]
@@ -416,7 +418,11 @@ class SkillRetPolicy(PreTrainedPolicy):
             "oracle": oracle,
             "shuffled": oracle[permutation],
         }
-        return {name: self.skills.window_error(z, target) for name, z in skills.items()}
+        errors = {name: self.skills.window_error(z, target) for name, z in skills.items()}
+        actions, valid = target[ACTION], target["valid"]
+        squared = (actions - actions[valid].mean(dim=0)).pow(2).sum(dim=-1) * valid
+        errors["mean_action"] = squared.sum(dim=1) / valid.sum(dim=1).clamp_min(1)
+        return errors
 
     # --- inference --------------------------------------------------------------------------------------------
 
