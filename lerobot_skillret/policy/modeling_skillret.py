@@ -38,7 +38,7 @@ from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
 from lerobot_skillret.policy.latent_policy import RETRIEVED_ID, TARGET_ID, LatentPolicy
 from lerobot_skillret.policy.normalization import SkillNormalizer
 from lerobot_skillret.policy.relative_positions import relative_stats, to_relative
-from lerobot_skillret.policy.skills import SkillModel, make_observation_encoder
+from lerobot_skillret.policy.skills import SkillModel, make_observation_encoder, valid_step_mean
 
 if TYPE_CHECKING:
     from lerobot_skillret.data.windows import EpisodeColumns
@@ -420,8 +420,7 @@ class SkillRetPolicy(PreTrainedPolicy):
         }
         errors = {name: self.skills.window_error(z, target) for name, z in skills.items()}
         actions, valid = target[ACTION], target["valid"]
-        squared = (actions - actions[valid].mean(dim=0)).pow(2).sum(dim=-1) * valid
-        errors["mean_action"] = squared.sum(dim=1) / valid.sum(dim=1).clamp_min(1)
+        errors["mean_action"] = valid_step_mean((actions - actions[valid].mean(dim=0)).pow(2).sum(dim=-1), valid)
         return errors
 
     # --- inference --------------------------------------------------------------------------------------------

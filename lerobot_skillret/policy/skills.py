@@ -33,6 +33,11 @@ def last_valid(values: Tensor, valid: Tensor) -> Tensor:
     return values[torch.arange(values.shape[0], device=values.device), index]
 
 
+def valid_step_mean(values: Tensor, valid: Tensor) -> Tensor:
+    """Each row of values (B, T) averaged over its valid steps (valid (B, T), bool or 0/1): (B,)."""
+    return (values * valid).sum(dim=1) / valid.sum(dim=1).clamp_min(1.0)
+
+
 def gaussian_kl(mean_q: Tensor, log_var_q: Tensor, mean_p: Tensor, log_var_p: Tensor) -> Tensor:
     """KL(N(mean_q, var_q) || N(mean_p, var_p)) of diagonal Gaussians, summed over the latent: (B,)."""
     q = Normal(mean_q, torch.exp(0.5 * log_var_q))
@@ -157,8 +162,7 @@ class SkillModel(nn.Module):
 
     def window_error(self, z: Tensor, window: Window) -> Tensor:
         """`action_error` averaged over each window's valid steps, (B,)."""
-        squared, valid = self.action_error(z, window)
-        return (squared * valid).sum(dim=1) / valid.sum(dim=1).clamp_min(1.0)
+        return valid_step_mean(*self.action_error(z, window))
 
     def loss(
         self,
