@@ -16,6 +16,7 @@ from torch.distributions import Categorical, Independent, MixtureSameFamily, Nor
 
 from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
 from lerobot_skillret.policy.networks import ObservationEncoder, mlp
+from lerobot_skillret.policy.skills import valid_step_mean
 
 TARGET_ID = 0
 RETRIEVED_ID = 1
@@ -79,5 +80,4 @@ class LatentPolicy(nn.Module):
             per_step, picked = (out - labels).pow(2).sum(dim=-1), out
         if labels.ndim == 2:
             return per_step, picked
-        weight = valid.to(per_step.dtype)
-        return (per_step * weight).sum(dim=1) / weight.sum(dim=1).clamp(min=1.0), picked[:, -1]
+        return valid_step_mean(per_step, valid.to(per_step.dtype)), picked[:, -1]
