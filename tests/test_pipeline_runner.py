@@ -739,3 +739,22 @@ def test_a_truncated_cell_or_an_output_dir_that_is_a_file_is_one_line(tmp_path: 
     a_file.write_text("")
     with pytest.raises(ValueError, match=r"`output_dir` .*a_file is a file"):
         PipelineConfig.from_args("configs/pipeline/smoke.yaml", [f"--output_dir={a_file}"])
+
+
+def test_run_refuses_to_start_without_the_lerobot_plugin(tmp_path: Path, monkeypatch, capsys) -> None:
+    """Without the installed plugin lerobot-train cannot resolve --policy.type=skillret: say so before any stage."""
+    from lerobot_skillret.pipeline import run as run_module
+
+    def no_stage(self, stage):
+        raise AssertionError(f"stage {stage.name} started")
+
+    monkeypatch.setattr(StageRunner, "run", no_stage)
+    monkeypatch.setattr(run_module, "PLUGIN", "lerobot_policy_not_installed")
+    config = Path(__file__).resolve().parents[1] / "configs" / "pipeline" / "smoke.yaml"
+    with pytest.raises(SystemExit) as exit_info:
+        run_module.main(["run", "--config", str(config), f"--output_dir={tmp_path / 'out'}"])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "lerobot_policy_not_installed is not installed" in err and "pip install -e " in err
+    monkeypatch.undo()
+    run_module.check_plugin()  # the real plugin of this install is found

@@ -11,6 +11,8 @@ Finished stages are skipped on re-run, so an interrupted run is continued by run
 from __future__ import annotations
 
 import argparse
+import importlib.metadata
+import importlib.util
 import logging
 import os
 import threading
@@ -28,6 +30,26 @@ from lerobot_skillret.pipeline.results import PUBLISHED_HELDOUT, collect, write_
 from lerobot_skillret.pipeline.stages import Cancelled, Stage, StageRunner
 
 log = logging.getLogger("skillret.pipeline")
+
+PLUGIN = "lerobot_policy_skillret"  # the distribution and module through which LeRobot's CLIs find skillret
+
+
+def check_plugin() -> None:
+    """Refuse to start when `lerobot-train` / `lerobot-eval` could not find `--policy.type=skillret`: LeRobot imports
+    installed `lerobot_policy_*` plugins only, so a checkout on PYTHONPATH or an editable install whose folder moved
+    would otherwise fail at the first training stage, after the data stages, with LeRobot's list of policy types."""
+    try:
+        importlib.metadata.distribution(PLUGIN)
+        found = importlib.util.find_spec(PLUGIN) is not None
+    except importlib.metadata.PackageNotFoundError:
+        found = False
+    if not found:
+        root = Path(__file__).resolve().parents[2]
+        raise RuntimeError(
+            f"the LeRobot plugin {PLUGIN} is not installed in this Python (or its editable install points at a "
+            f"folder that is gone), so lerobot-train would not know --policy.type=skillret; "
+            f"install the package: pip install -e {root}"
+        )
 
 
 def prerequisites(plan: Plan, cell: Cell) -> list[Stage]:
@@ -110,6 +132,7 @@ def _report(plan: Plan) -> str:
 
 def run(cfg: PipelineConfig) -> Path:
     """Run (or continue) every stage of `cfg`; return the markdown table's path."""
+    check_plugin()
     plan = Plan(cfg)
     runner = _runner(cfg, plan)
     start = time.monotonic()
