@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import draccus
 import pytest
 import torch
+from lerobot.configs.train import TrainPipelineConfig
 from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 from policy_fixtures import PRIOR_REPO, TARGET_REPO, build_policy, tiny_config
 from synthetic import make_synthetic_dataset
@@ -112,3 +114,12 @@ def test_sample_weighting_is_refused_with_the_reason(prior_root):
     policy = build_policy(config, PRIOR_REPO, prior_root)
     with pytest.raises(ValueError, match=r"reduction='none'.*Train without --sample_weighting"):
         policy.forward({}, reduction="none")
+
+
+def test_an_invalid_config_value_reaches_a_lerobot_train_user(caplog):
+    """lerobot-train's parser turns the config's ValueError into "Couldn't instantiate class SkillRetConfig"; the
+    reason must still be shown."""
+    args = ["--policy.type=skillret", "--policy.horizon=0", "--dataset.repo_id=local/x", "--policy.push_to_hub=false"]
+    with pytest.raises(draccus.utils.DecodingError, match="Couldn't instantiate class SkillRetConfig"):
+        draccus.parse(TrainPipelineConfig, args=args)
+    assert "skillret config: `horizon`=0 is invalid: it must be >= 1." in caplog.text

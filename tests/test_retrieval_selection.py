@@ -100,6 +100,14 @@ def test_bad_settings_have_clear_errors(kwargs, match):
         RetrievalSettings(**kwargs).resolve()
 
 
+@pytest.mark.parametrize("mode", ["nearest", "random"])
+def test_a_fraction_that_retrieves_no_window_is_refused(mode):
+    """round(r * N) = 0 would write an empty file, and stage 2 would quietly train the no-retrieval ablation."""
+    prior, target = latents(num_prior=40)
+    with pytest.raises(ValueError, match=r"r = 0.01 of 40 prior windows retrieves no window.*raise --fraction"):
+        select_windows(prior, target, RetrievalSettings(mode=mode, fraction=0.01).resolve())
+
+
 def test_unknown_ablation_is_named():
     with pytest.raises(ValueError, match="Unknown retrieval ablation"):
         ablation("best")

@@ -7,6 +7,7 @@ Defaults are the paper's (Table 7 of the seed appendix; GPU-scale, as in `config
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 from itertools import pairwise
@@ -173,7 +174,11 @@ class SkillRetConfig(PreTrainedConfig):
         """Reject values that would silently train something else than the method."""
 
         def fail(name: str, value: object, why: str) -> None:
-            raise ValueError(f"skillret config: `{name}`={value!r} is invalid: {why}.")
+            message = f"skillret config: `{name}`={value!r} is invalid: {why}."
+            # lerobot-train's parser (draccus) replaces a config's ValueError by "Couldn't instantiate class
+            # SkillRetConfig", so the reason is logged too: without it a command-line user never sees it
+            logging.getLogger(__name__).error(message)
+            raise ValueError(message)
 
         if self.stage not in STAGES:
             fail("stage", self.stage, f"choose one of {STAGES}")

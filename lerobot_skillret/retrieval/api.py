@@ -267,6 +267,12 @@ def select_windows(
     engine = NearestTarget(target_mean, log_vars[1], metric=settings.metric)
     num = prior_mean.shape[0]
     count = retrieval_count(settings.fraction, num) if settings.mode != "none" else 0
+    if count == 0 and settings.mode != "none":
+        # a file that selects nothing would turn stage 2 into the no-retrieval ablation without a word
+        raise ValueError(
+            f"r = {settings.fraction:g} of {num:,} prior windows retrieves no window (round(r * N) = 0): raise "
+            "--fraction or use more prior data (or --mode none for the no-retrieval ablation)."
+        )
     # Nearest-target indices cost ~30% of the pass: get them for all rows only when most rows are retrieved
     # anyway; otherwise only for the retrieved rows, afterwards.
     with_nearest = count > num // 4
