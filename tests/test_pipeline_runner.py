@@ -296,6 +296,10 @@ def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
     path.write_text("heldout: {seed: 0}\n")  # data.seed is 0: the "held-out" demos would be the training ones
     with pytest.raises(ValueError, match=r"`heldout\.seed` equals `data\.seed`=0"):
         PipelineConfig.from_args(path)
+    for content, kind in (("", "NoneType"), ("- tasks: [cook]\n", "list")):  # draccus: an AttributeError
+        path.write_text(content)
+        with pytest.raises(ValueError, match=f"holds {kind}, not a mapping of settings"):
+            PipelineConfig.from_args(path)
     path.write_text("heldout: {episodes: 0}\n")
     with pytest.raises(ValueError, match=r"`heldout\.episodes` must be an integer >= 1 \(got 0\)"):
         PipelineConfig.from_args(path)
@@ -326,6 +330,7 @@ def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
         ("--seeds=[-1]", r"seeds must be integers >= 0"),
         ("--data.seed=-3", r"seeds must be integers >= 0"),
         ("--skills.num_workers=-1", r"`skills` needs .* num_workers >= 0"),
+        ("--methods=[]", r"`tasks`, `seeds` and `methods` must each name at least one entry"),
     ],
 )
 def test_config_refuses_what_a_stage_would_refuse_hours_later(tmp_path: Path, override: str, named: str) -> None:

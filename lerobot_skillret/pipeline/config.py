@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import draccus
+import yaml
 
 from lerobot_skillret.kitchen.generate import (
     DEFAULT_DEMOS,
@@ -191,8 +192,8 @@ class PipelineConfig:
                 raise ValueError(f"pipeline config: `data.{name}` must be >= 1 (got {getattr(self.data, name)}).")
         if self.data.workers < 0:
             raise ValueError(f"pipeline config: `data.workers` must be >= 0 (got {self.data.workers}; 0: in-process).")
-        if not self.tasks or not self.seeds:
-            raise ValueError("pipeline config: `tasks` and `seeds` must each name at least one entry.")
+        if not self.tasks or not self.seeds or not self.methods:
+            raise ValueError("pipeline config: `tasks`, `seeds` and `methods` must each name at least one entry.")
         counts = {f"eval.{name}": getattr(self.eval, name) for name in ("n_episodes", "batch_size", "max_checkpoints")}
         for name, value in (counts | {"heldout.episodes": self.heldout.episodes}).items():
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
@@ -254,10 +255,19 @@ class PipelineConfig:
         if not path.is_file():
             raise FileNotFoundError(f"pipeline config {path} not found (see configs/pipeline/ for examples).")
         try:
+            content = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as err:
+            raise ValueError(f"{path}: {err}") from None
+        if not isinstance(content, dict):  # draccus fails on these with an AttributeError
+            raise ValueError(
+                f"{path} holds {type(content).__name__}, not a mapping of settings: write `key: value` lines, as in "
+                "configs/pipeline/benchmark.yaml."
+            )
+        try:
             return draccus.parse(cls, config_path=path, args=list(args))
         except draccus.utils.DecodingError as err:
             raise ValueError(f"{path}: {err}. Correct it in the config file or the command-line override.") from None
-        except draccus.utils.ParsingError as err:  # wraps what __post_init__ refused, or a YAML syntax error
+        except draccus.utils.ParsingError as err:  # wraps what __post_init__ refused
             cause = err.__cause__
             if isinstance(cause, (ValueError, FileNotFoundError)):
                 raise cause from None
