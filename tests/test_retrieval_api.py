@@ -18,6 +18,7 @@ from synthetic import NUM_PRIMITIVES, make_synthetic_dataset
 from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
 from lerobot_skillret.data.retrieval_file import RetrievalResult
 from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
+from lerobot_skillret.retrieval import api
 from lerobot_skillret.retrieval.api import retrieve
 from lerobot_skillret.retrieval.cli import main
 from lerobot_skillret.retrieval.report import retrieval_precision
@@ -137,7 +138,7 @@ def test_api_defaults_come_from_the_checkpoint(setup, tmp_path):
     assert override.settings["fraction"] == 0.05
 
 
-def test_bad_inputs_have_clear_errors(setup, tmp_path, capsys):
+def test_bad_inputs_have_clear_errors(setup, tmp_path, capsys, monkeypatch):
     output = tmp_path / "ret.safetensors"
 
     def fails(args: list[str], match: str) -> None:
@@ -166,6 +167,9 @@ def test_bad_inputs_have_clear_errors(setup, tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(cli_args(setup, output, "--num-prior", "lots"))
     assert "expected a number of windows or 'all'" in capsys.readouterr().err
+    with monkeypatch.context() as patch:  # refused before the windows are encoded, the run's expensive part
+        patch.setattr(api, "encode_windows", lambda *args, **kwargs: pytest.fail("encoded before refusing"))
+        fails(cli_args(setup, output, "--fraction", "0.0001"), "retrieves no window (round(r * N) = 0)")
     assert not output.exists()
 
 

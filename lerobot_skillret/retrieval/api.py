@@ -109,6 +109,7 @@ def retrieve(
     names = label_names(load_label_names(prior_root), labels, target_labels)
     if relevant_primitives:
         relevant_labels(relevant_primitives, names)  # fail before the expensive part, not after it
+    selected_count(settings, len(candidates))  # likewise
     common = {"batch_size": settings.batch_size, "keep_log_var": settings.metric == "kl", "progress": progress}
     prior = encode_windows(policy, prior_columns, candidates, name="prior", **common)
     target = encode_windows(policy, target_columns, targets, name="target", **common)
@@ -266,13 +267,7 @@ def select_windows(
     log_vars = (prior_log_var, target_log_var) if settings.metric == "kl" else (None, None)
     engine = NearestTarget(target_mean, log_vars[1], metric=settings.metric)
     num = prior_mean.shape[0]
-    count = retrieval_count(settings.fraction, num) if settings.mode != "none" else 0
-    if count == 0 and settings.mode != "none":
-        # a file that selects nothing would turn stage 2 into the no-retrieval ablation without a word
-        raise ValueError(
-            f"r = {settings.fraction:g} of {num:,} prior windows retrieves no window (round(r * N) = 0): raise "
-            "--fraction or use more prior data (or --mode none for the no-retrieval ablation)."
-        )
+    count = selected_count(settings, num)
     # Nearest-target indices cost ~30% of the pass: get them for all rows only when most rows are retrieved
     # anyway; otherwise only for the retrieved rows, afterwards.
     with_nearest = count > num // 4
@@ -297,6 +292,20 @@ def select_windows(
             prior_mean[retrieved], log_var, chunk_size=settings.chunk_size, with_nearest=True
         ).nearest
     return Selection(distance=distance, retrieved=retrieved, nearest=nearest)
+
+
+def selected_count(settings: RetrievalSettings, num_candidates: int) -> int:
+    """How many candidates `settings` retrieves (0 for mode "none"); refuses an r that rounds to no window, since a
+    file that selects nothing would turn stage 2 into the no-retrieval ablation without a word."""
+    if settings.mode == "none":
+        return 0
+    count = retrieval_count(settings.fraction, num_candidates)
+    if count == 0:
+        raise ValueError(
+            f"r = {settings.fraction:g} of {num_candidates:,} prior windows retrieves no window (round(r * N) = 0): "
+            "raise --fraction or use more prior data (or --mode none for the no-retrieval ablation)."
+        )
+    return count
 
 
 def retrieval_count(fraction: float, num_candidates: int) -> int:
