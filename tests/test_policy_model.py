@@ -24,6 +24,7 @@ from synthetic import make_synthetic_dataset
 
 from lerobot_skillret.data.fingerprint import checkpoint_fingerprint
 from lerobot_skillret.data.windows import EpisodeColumns, WindowSampler
+from lerobot_skillret.policy import networks
 from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
 from lerobot_skillret.policy.latent_policy import RETRIEVED_ID, TARGET_ID
 from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy, first_half
@@ -516,9 +517,10 @@ def test_bf16_autocast_keeps_losses_latents_and_actions_float32(stage1_dir, prio
         torch.manual_seed(0)
         policy._training_data = None
         loss, info = policy.forward(batch)
-        assert policy.skills.decoder.lstm(torch.zeros(1, 2, policy.skills.decoder.lstm.input_size))[0].dtype == (
-            torch.bfloat16
-        )  # the autocast really runs the LSTMs in bf16
+        lstm = policy.skills.decoder.lstm
+        # the autocast really runs the LSTMs in bf16, where this CPU's oneDNN can (run_lstm: float32 where not)
+        expected = torch.bfloat16 if networks._onednn_runs_bf16() else torch.float32
+        assert networks.run_lstm(lstm, torch.zeros(1, 2, lstm.input_size))[0].dtype == expected
         mean, _ = policy.encode_skill(batch)
         policy.reset()
         action = policy.select_action({key: batch[key][:, -1] for key in policy.observation_keys})
@@ -529,6 +531,22 @@ def test_bf16_autocast_keeps_losses_latents_and_actions_float32(stage1_dir, prio
     loss.backward()
     assert all(p.grad.dtype == torch.float32 for p in policy.parameters() if p.grad is not None)
     assert _grad_norm(policy.latent_policy) > 0 and _grad_norm(policy.skills.encoder) > 0
+
+
+def test_use_amp_trains_on_a_cpu_without_onednn_bf16(stage1_dir, target_root, monkeypatch):
+    """CPU autocast hands nn.LSTM to oneDNN, which has no bf16 LSTM without AVX-512: `--policy.use_amp=true` crashed
+    there ("could not create a primitive descriptor"). Such a CPU's LSTMs run in float32, the rest in bf16."""
+    monkeypatch.setattr(networks, "_onednn_runs_bf16", lambda: False)
+    policy = stage2_policy(stage1_dir, target_root, use_retrieval=False).train()
+    batch = training_batch(policy.config, TARGET_REPO, target_root)
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        loss, _ = policy.forward(batch)
+        lstm = policy.skills.decoder.lstm
+        state = (torch.zeros(2, 1, lstm.hidden_size, dtype=torch.bfloat16),) * 2
+        outputs, (h, c) = networks.run_lstm(lstm, torch.zeros(1, 2, lstm.input_size, dtype=torch.bfloat16), state)
+    assert outputs.dtype == h.dtype == c.dtype == torch.float32
+    loss.backward()
+    assert torch.isfinite(loss) and _grad_norm(policy.skills.decoder) > 0
 
 
 @pytest.mark.parametrize("skill_steps", [None, 3])

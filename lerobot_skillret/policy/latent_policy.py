@@ -15,7 +15,7 @@ from torch import Tensor, nn
 from torch.distributions import Categorical, Independent, MixtureSameFamily, Normal
 
 from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
-from lerobot_skillret.policy.networks import ObservationEncoder, mlp
+from lerobot_skillret.policy.networks import ObservationEncoder, mlp, run_lstm
 from lerobot_skillret.policy.skills import valid_step_mean
 
 TARGET_ID = 0
@@ -41,7 +41,7 @@ class LatentPolicy(nn.Module):
         obs = self.obs_encoder(history)
         one_hot = F.one_hot(dataset_id, NUM_DATASET_IDS).to(obs.dtype)
         features = torch.cat([obs, one_hot[:, None, :].expand(-1, obs.shape[1], -1)], dim=-1)
-        outputs, _ = self.lstm(features)
+        outputs, _ = run_lstm(self.lstm, features)
         return self.head(outputs if every_step else outputs[:, -1]).float()
 
     def _mixture(self, out: Tensor) -> MixtureSameFamily:

@@ -7,6 +7,7 @@ scratch whose feature map is pooled to keypoints by a spatial softmax, with rand
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import Mapping, Sequence
 
@@ -133,6 +134,25 @@ class ObservationEncoder(nn.Module):
 
 
 CellState = list[tuple[Tensor, Tensor]]
+LSTMState = tuple[Tensor, Tensor]
+
+
+@functools.cache
+def _onednn_runs_bf16() -> bool:
+    """Whether oneDNN has bfloat16 kernels on this CPU (AVX-512 and newer): CPU autocast hands `nn.LSTM` to oneDNN,
+    which fails without them ("could not create a primitive descriptor for the LSTM forward propagation primitive").
+    torch has no public query for it."""
+    return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+
+
+def run_lstm(lstm: nn.LSTM, inputs: Tensor, state: LSTMState | None = None) -> tuple[Tensor, LSTMState]:
+    """`lstm(inputs, state)`; in float32 under CPU autocast on a CPU without oneDNN's bfloat16 kernels, so that
+    `--policy.use_amp=true` trains everywhere (the LSTMs then run at float32 speed, the rest in bfloat16)."""
+    if inputs.device.type == "cpu" and torch.is_autocast_enabled("cpu") and not _onednn_runs_bf16():
+        with torch.autocast("cpu", enabled=False):
+            state = None if state is None else (state[0].float(), state[1].float())
+            return lstm(inputs.float(), state)
+    return lstm(inputs, state)
 
 
 def lstm_steps(lstm: nn.LSTM, inputs: Tensor, state: CellState | None = None) -> tuple[Tensor, CellState]:

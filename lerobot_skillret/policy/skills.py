@@ -21,10 +21,17 @@ from torch import Tensor, nn
 from torch.distributions import Normal, kl_divergence
 
 from lerobot_skillret.policy.configuration_skillret import SkillRetConfig
-from lerobot_skillret.policy.networks import CellState, ObservationEncoder, lstm_steps, mlp, mlp_out_dim
+from lerobot_skillret.policy.networks import (
+    CellState,
+    LSTMState,
+    ObservationEncoder,
+    lstm_steps,
+    mlp,
+    mlp_out_dim,
+    run_lstm,
+)
 
 Window = Mapping[str, Tensor]
-LSTMState = tuple[Tensor, Tensor]
 
 
 def last_valid(values: Tensor, valid: Tensor) -> Tensor:
@@ -70,7 +77,7 @@ class SkillEncoder(nn.Module):
     def forward(self, window: Window) -> tuple[Tensor, Tensor]:
         """(mean, log_var), each (B, latent). Read at the last valid step, so padded steps never shape z."""
         features = torch.cat([self.obs_encoder(window), window["action"]], dim=-1)
-        outputs, _ = self.lstm(features)
+        outputs, _ = run_lstm(self.lstm, features)
         mean, log_var = self.head(last_valid(outputs, window["valid"])).float().chunk(2, dim=-1)
         return mean, log_var
 
@@ -91,7 +98,7 @@ class SkillDecoder(nn.Module):
         """z (B, L), observations (B, T, ...) -> normalised actions (B, T, A) and the LSTM state after step T."""
         obs = self.obs_encoder(observation)
         features = torch.cat([z[:, None, :].expand(-1, obs.shape[1], -1), obs], dim=-1)
-        outputs, state = self.lstm(features, state)
+        outputs, state = run_lstm(self.lstm, features, state)
         return self.squash(self.head(outputs).float()), state
 
     def step(self, z: Tensor, observation: Window, state: CellState | None) -> tuple[Tensor, CellState]:
