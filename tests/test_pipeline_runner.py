@@ -21,9 +21,9 @@ from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.protocol import read_loss_curve, summarise_cell
 from lerobot_skillret.pipeline.results import (
     HELDOUT_FILE,
-    PUBLISHED_HELDOUT,
     bar_plot,
     collect,
+    collect_heldout,
     loss_plot,
     markdown_report,
     markdown_table,
@@ -306,6 +306,9 @@ def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
     path.write_text("skills: {config_path: configs/policy/cpu.jsn}\n")
     with pytest.raises(FileNotFoundError, match=r"`skills\.config_path` configs/policy/cpu\.jsn not found"):
         PipelineConfig.from_args(path)
+    path.write_text("methods: [skillret_policy_decoder]\npolicy: {args: {policy.finetune_skills: false}}\n")
+    with pytest.raises(ValueError, match=r"`policy` with skillret_policy_decoder's own options .*finetune_skills=true"):
+        PipelineConfig.from_args(path)  # the method's own option (decoder_policy_weight) needs the fine-tuning
     path.write_text("skills: {steps: 1.5}\n")
     with pytest.raises(ValueError, match=r"`skills\.steps`: Couldn't parse '1\.5' into an int"):
         PipelineConfig.from_args(path)
@@ -331,12 +334,27 @@ def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
         ("--data.seed=-3", r"seeds must be integers >= 0"),
         ("--skills.num_workers=-1", r"`skills` needs .* num_workers >= 0"),
         ("--methods=[]", r"`tasks`, `seeds` and `methods` must each name at least one entry"),
+        # values: each config class's own checks, over the run its checkpoint comes from (stage 2 over stage 1)
+        ("--skills.args={policy.horizon: 0}", r"`skills` gives skillret .*`horizon`=0 is invalid: it must be >= 1"),
+        ("--policy.args={policy.kl_weight: heavy}", r"`policy` gives skillret .*`kl_weight`: Couldn't parse 'heavy'"),
+        ("--policy.args={policy.skill_steps: 12}", r"`policy` gives skillret .*`skill_steps`=12 .* H = 10\]"),
+        ("--baselines.act.args={policy.chunk_size: 4}", r"`baselines\.act` gives act .*Got 100 for `n_action_steps`"),
+        # options the pipeline or the section's own fields set: the later one would win silently
+        ("--policy.args={steps: 50}", r"`policy\.args` key `steps` repeats `policy\.steps`"),
+        ("--eval.args={eval.n_episodes: 5}", r"`eval\.args` key `eval\.n_episodes` repeats `eval\.n_episodes`"),
+        ("--skills.args={dataset.root: data/x}", r"`skills\.args` key `dataset\.root` is set by the pipeline"),
+        ("--policy.args={policy.use_retrieval: false}", r"key `policy\.use_retrieval` is set by the pipeline"),
+        ("--retrieval.args={seed: 3}", r"`retrieval\.args` key `seed` is set by the pipeline"),
     ],
 )
 def test_config_refuses_what_a_stage_would_refuse_hours_later(tmp_path: Path, override: str, named: str) -> None:
     path = tmp_path / "p.yaml"
     path.write_text("methods: [skillret, act]\nbaselines: {act: {steps: 10}}\n")
-    PipelineConfig.from_args(path, ["--policy.args={policy.horizon: 5}", "--baselines.act.args={policy.chunk_size: 5}"])
+    valid = [
+        "--policy.args={policy.horizon: 5}",
+        "--baselines.act.args={policy.chunk_size: 5, policy.n_action_steps: 5}",
+    ]
+    PipelineConfig.from_args(path, valid)
     with pytest.raises(ValueError, match=named):
         PipelineConfig.from_args(path, [override])
 
@@ -510,7 +528,7 @@ def test_heldout_table_is_the_final_checkpoints_mean_over_seeds(tmp_path: Path) 
     score("skillret", "cook", 0, (0.2, 0.1))
     score("skillret", "cook", 1, (0.3, 0.2))
     score("skillret", "breakfast", 0, (0.5, 0.25))
-    report = markdown_report({}, collect(tmp_path, PUBLISHED_HELDOUT))
+    report = markdown_report({}, collect_heldout(tmp_path))
     table = report.split("### Held-out imitation error")[1]
     assert "| skillret | 0.500 (0.250) | 0.250 (0.150) | 0.375 |" in table  # step-1000 rows never count
     assert "| no_prior | — | 0.400 (0.100) | — |" in table
@@ -744,6 +762,43 @@ def test_a_truncated_cell_or_an_output_dir_that_is_a_file_is_one_line(tmp_path: 
     a_file.write_text("")
     with pytest.raises(ValueError, match=r"`output_dir` .*a_file is a file"):
         PipelineConfig.from_args("configs/pipeline/smoke.yaml", [f"--output_dir={a_file}"])
+
+
+@pytest.mark.parametrize(
+    ("edit", "named"),
+    [
+        ({"success": 7.5}, r"`success` must be a fraction in \[0, 1\] \(got 7\.5\)"),  # a percent: was 750 %
+        ({"success": "0.5"}, r"`success` must be a fraction in \[0, 1\] \(got '0\.5'\)"),  # was a numpy error
+        ({"subgoals": None}, r"`subgoals` must be a fraction"),
+        ({"n_episodes": 0}, r"`n_episodes` must be an integer >= 1"),
+        ({"task": 3}, r"`task` must be a name"),
+    ],
+)
+def test_table_refuses_a_hand_edited_cell_naming_the_field(tmp_path: Path, edit: dict, named: str) -> None:
+    cell = {"method": "skillret", "task": "cook", "success": 0.5, "subgoals": 0.6, "n_episodes": 50} | edit
+    path = tmp_path / "skillret" / "cook" / "seed0" / "cell.json"
+    path.parent.mkdir(parents=True)
+    path.write_text(json.dumps(cell))
+    with pytest.raises(ValueError, match=f"{path}: {named}.*restore it"):
+        collect(tmp_path)
+    path.write_text(json.dumps({"method": "skillret", "task": "cook", "success": 0.5, "n_episodes": 50}))
+    assert collect(tmp_path)[("skillret", "cook")]  # a cell from before subtask progress was recorded still reads
+    heldout = path.parent / HELDOUT_FILE
+    heldout.write_text(json.dumps({"method": "skillret", "task": "cook", "checkpoints": [{"step": 5}]}))
+    with pytest.raises(ValueError, match=r"`checkpoints` must be a list of \{step, policy, oracle\}"):
+        collect_heldout(tmp_path)
+
+
+def test_heldout_on_an_output_dir_without_trained_cells_is_an_error(tmp_path: Path, capsys) -> None:
+    """A mistyped --output_dir used to log a warning and exit 0 with nothing scored."""
+    from lerobot_skillret.pipeline import run as run_module
+
+    config = Path(__file__).resolve().parents[1] / "configs" / "pipeline" / "smoke.yaml"
+    with pytest.raises(SystemExit) as exit_info:
+        run_module.main(["heldout", "--config", str(config), f"--output_dir={tmp_path / 'typo'}"])
+    assert exit_info.value.code == 2
+    assert f"no trained skillret-variant cell in {tmp_path / 'typo'}" in capsys.readouterr().err
+    assert not (tmp_path / "typo").exists()
 
 
 def test_run_refuses_to_start_without_the_lerobot_plugin(tmp_path: Path, monkeypatch, capsys) -> None:

@@ -7,6 +7,7 @@ stock `lerobot-train` run; its options are written exactly as on the command lin
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -24,6 +25,116 @@ from lerobot_skillret.kitchen.generate import (
 from lerobot_skillret.kitchen.tasks import TASKS
 from lerobot_skillret.pipeline.methods import METHODS
 from lerobot_skillret.retrieval.cli import as_arguments
+
+
+def cli_args(options: dict[str, Any]) -> list[str]:
+    """{"policy.horizon": 10} -> ["--policy.horizon=10"] (None -> null, booleans lower-case, lists as JSON)."""
+    out = []
+    for key, value in options.items():
+        if value is None:
+            text = "null"
+        elif isinstance(value, bool):
+            text = str(value).lower()
+        elif isinstance(value, list | tuple):
+            text = "[" + ",".join(str(v) for v in value) + "]"
+        else:
+            text = str(value)
+        out.append(f"--{key}={text}")
+    return out
+
+
+# Options the pipeline itself gives every stage of a command: where the data, the outputs and the policy come from,
+# the seed, and what makes a method that method. Given in a section's `args` as well, they would reach the command
+# twice, the later one winning silently.
+PIPELINE_OPTIONS = {
+    "lerobot-train": (
+        "dataset.repo_id",
+        "dataset.root",
+        "output_dir",
+        "job_name",
+        "seed",
+        "config_path",
+        "policy.type",
+        "policy.path",
+        "policy.stage",
+        "policy.use_retrieval",
+        "policy.retrieval_path",
+        "policy.prior_repo_id",
+        "policy.prior_root",
+    ),
+    "lerobot-eval": ("policy.path", "env.type", "env.task", "seed", "output_dir"),
+    "skillret-retrieve": (
+        "checkpoint",
+        "prior-root",
+        "prior-repo-id",
+        "target-root",
+        "target-repo-id",
+        "output",
+        "report-dir",
+        "seed",
+    ),
+}
+# Options that a section's own field sets (`skills.steps: 1000` is `--steps=1000`): the field is what the pipeline
+# reads back (which checkpoints exist, how many rollouts), so it must be the only place the value is given.
+SECTION_FIELDS = {
+    "lerobot-train": {name: name for name in ("steps", "batch_size", "save_freq", "num_workers")},
+    "lerobot-eval": {
+        "eval.n_episodes": "n_episodes",
+        "eval.batch_size": "batch_size",
+        "env.episode_length": "episode_length",
+    },
+}
+
+
+def _check_owned_options(where: str, options: dict[str, Any], command: str) -> None:
+    """Refuse an `args` key that the pipeline or the section's own field already sets (see PIPELINE_OPTIONS)."""
+    section = where.removesuffix(".args")
+    for key in options:
+        flag = key.replace("_", "-") if command == "skillret-retrieve" else key
+        if flag in PIPELINE_OPTIONS[command]:
+            raise ValueError(
+                f"pipeline config: `{where}` key `{key}` is set by the pipeline for every {command} it runs "
+                "(data, outputs, seeds and each method's wiring); remove it."
+            )
+        if key in SECTION_FIELDS.get(command, {}):
+            raise ValueError(
+                f"pipeline config: `{where}` key `{key}` repeats `{section}.{SECTION_FIELDS[command][key]}`, which "
+                "the pipeline reads back: set that field instead."
+            )
+
+
+def _policy_values(spec: TrainSpec) -> dict[str, Any]:
+    """The policy settings a training section gives: its config file's `policy` section, then its `policy.*` args."""
+    values: dict[str, Any] = {}
+    if spec.config_path is not None and Path(spec.config_path).is_file():  # a missing one is refused by the caller
+        try:
+            values = dict(json.loads(Path(spec.config_path).read_text()).get("policy", {}))
+        except (ValueError, AttributeError) as err:
+            raise ValueError(f"pipeline config: {spec.config_path} is no lerobot-train config file: {err}") from None
+    for key, value in spec.args.items():
+        if key.startswith("policy."):
+            *parents, name = key.removeprefix("policy.").split(".")
+            node = values
+            for parent in parents:  # `policy.optimizer.lr: 0.1` -> {"optimizer": {"lr": 0.1}}
+                node = node.setdefault(parent, {})
+            node[name] = value
+    return values
+
+
+def _check_policy_values(where: str, values: dict[str, Any], policy_type: str, note: str = "") -> None:
+    """Build the `policy_type` config from `values` over its defaults, so that a value the config's own checks refuse
+    (`policy.horizon: 0`, ACT's n_action_steps > chunk_size) is refused before any stage runs, not when its stage
+    starts."""
+    values = {k: v for k, v in values.items() if k not in ("type", "path")}
+    if not values:
+        return
+    (config_class,) = _policy_configs([policy_type])
+    try:
+        draccus.decode(config_class, values)
+    except draccus.utils.ParsingError as err:
+        # a value of the wrong type (DecodingError) names itself; a value the config's own check refused is the cause
+        reason = err if isinstance(err, draccus.utils.DecodingError) else err.__cause__ or err
+        raise ValueError(f"pipeline config: `{where}`{note} gives {policy_type} a value it refuses: {reason}") from None
 
 
 def _check_option_keys(where: str, options: dict[str, Any], command: str, policy_types: Sequence[str]) -> None:
@@ -227,6 +338,8 @@ class PipelineConfig:
                 "pipeline config: `eval.episode_length` must be >= 1, or null for the task's own "
                 f"(got {self.eval.episode_length})."
             )
+        _check_owned_options("retrieval.args", self.retrieval.args, "skillret-retrieve")
+        _check_owned_options("eval.args", self.eval.args, "lerobot-eval")
         try:
             as_arguments(self.retrieval.args)
         except ValueError as err:
@@ -239,12 +352,25 @@ class PipelineConfig:
                     f"pipeline config: `{spec_name}` needs steps, save_freq and batch_size >= 1, num_workers >= 0."
                 )
             _check_option_keys(f"{spec_name}.args", spec.args, "lerobot-train", [policy_types[spec_name]])
+            _check_owned_options(f"{spec_name}.args", spec.args, "lerobot-train")
             if spec.config_path is not None and not Path(spec.config_path).is_file():
                 raise FileNotFoundError(
                     f"pipeline config: `{spec_name}.config_path` {spec.config_path} not found (relative paths are "
                     f"read from the current folder {Path.cwd()}); run from the repository root or give an "
                     "absolute path."
                 )
+        starts_from = {"policy": "skills", "baselines.act_ft": "baselines.act_ft_prior"}  # its checkpoint's run
+        for spec_name, spec in specs.items():
+            base = specs.get(starts_from.get(spec_name, ""))
+            values = {**(_policy_values(base) if base is not None else {}), **_policy_values(spec)}
+            variants = {"": {}}  # the skillret variants add their own options to stage 2 (`Method.policy_args`)
+            if spec_name == "policy":
+                variants |= {
+                    f" with {m}'s own options": METHODS[m].policy_args for m in self.methods if METHODS[m].policy_args
+                }
+            for label, own in variants.items():
+                own_values = {key.removeprefix("policy."): value for key, value in own.items()}
+                _check_policy_values(spec_name, values | own_values, policy_types[spec_name], label)
 
     @classmethod
     def from_args(cls, config_path: str | Path, args: Sequence[str] = ()) -> PipelineConfig:

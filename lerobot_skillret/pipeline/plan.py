@@ -25,29 +25,13 @@ from typing import Any
 
 from lerobot_skillret.kitchen.fingerprint import kitchen_fingerprint
 from lerobot_skillret.kitchen.seeds import EVAL_SEED0
-from lerobot_skillret.pipeline.config import PipelineConfig, TrainSpec
+from lerobot_skillret.pipeline.config import PipelineConfig, TrainSpec, cli_args
 from lerobot_skillret.pipeline.methods import METHODS, retrieval_owner
 from lerobot_skillret.pipeline.stages import Stage
 from lerobot_skillret.retrieval.cli import as_arguments
 
 BIN = Path(sys.executable).parent
 PRETRAINED = Path("checkpoints/last/pretrained_model")
-
-
-def cli_args(options: dict[str, Any]) -> list[str]:
-    """{"policy.horizon": 10} -> ["--policy.horizon=10"] (None -> null, booleans lower-case, lists as JSON)."""
-    out = []
-    for key, value in options.items():
-        if value is None:
-            text = "null"
-        elif isinstance(value, bool):
-            text = str(value).lower()
-        elif isinstance(value, list | tuple):
-            text = "[" + ",".join(str(v) for v in value) + "]"
-        else:
-            text = str(value)
-        out.append(f"--{key}={text}")
-    return out
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,7 @@ the goals unmet at reset that were met), which still separates methods when ever
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from collections.abc import Callable
 from pathlib import Path
@@ -21,12 +22,58 @@ PUBLISHED_HELDOUT = f"*/*/seed*/{HELDOUT_FILE}"
 
 
 def collect(folder: Path, pattern: str = PUBLISHED_CELLS) -> dict[tuple[str, str], list[dict]]:
-    """Every cell summary (or held-out score) under `folder` matching `pattern`, grouped by (method, task)."""
-    cells: dict[tuple[str, str], list[dict]] = defaultdict(list)
+    """Every cell summary under `folder` matching `pattern`, grouped by (method, task)."""
+    return _grouped(folder, pattern, _check_cell)
+
+
+def collect_heldout(folder: Path, pattern: str = PUBLISHED_HELDOUT) -> dict[tuple[str, str], list[dict]]:
+    """Every held-out score under `folder` matching `pattern`, grouped by (method, task)."""
+    return _grouped(folder, pattern, _check_heldout)
+
+
+def _grouped(folder: Path, pattern: str, check: Callable[[dict], str | None]) -> dict[tuple[str, str], list[dict]]:
+    """The records matching `pattern`, each refused with its field named when the tables could not read it (a
+    hand-edited or foreign file would end in a numpy error, or a success of 750 %)."""
+    records: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for path in sorted(folder.glob(pattern)):
-        cell = read_json(path)
-        cells[(cell["method"], cell["task"])].append(cell)
-    return dict(cells)
+        record = read_json(path)
+        problem = f"holds {type(record).__name__}, not a record" if not isinstance(record, dict) else None
+        for key in ("method", "task"):
+            if problem is None and not isinstance(record.get(key), str):
+                problem = f"`{key}` must be a name (got {record.get(key)!r})"
+        problem = problem or check(record)
+        if problem:
+            raise ValueError(
+                f"{path}: {problem}. The pipeline writes this file: restore it, or delete it and run the same "
+                "`skillret-pipeline` command on the output_dir it came from."
+            )
+        records[(record["method"], record["task"])].append(record)
+    return dict(records)
+
+
+def _is_number(value: object, low: float, high: float = math.inf) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and low <= value <= high
+
+
+def _check_cell(cell: dict) -> str | None:
+    """What makes `cell` unreadable for the tables, if anything."""
+    if not isinstance(cell.get("n_episodes"), int) or not _is_number(cell["n_episodes"], 1):
+        return f"`n_episodes` must be an integer >= 1 (got {cell.get('n_episodes')!r})"
+    for metric in METRICS:  # fractions; a cell from before subtask progress existed has no `subgoals`
+        if (metric in cell or metric == "success") and not _is_number(cell.get(metric), 0, 1):
+            return f"`{metric}` must be a fraction in [0, 1] (got {cell.get(metric)!r})"
+    return None
+
+
+def _check_heldout(score: dict) -> str | None:
+    """What makes the held-out `score` unreadable for its table, if anything."""
+    rows = score.get("checkpoints")
+    fine = isinstance(rows, list) and rows and all(isinstance(r, dict) for r in rows)
+    if not fine or not all(_is_number(r.get(k), 0) for r in rows for k in ("step", "policy", "oracle")):
+        return "`checkpoints` must be a list of {step, policy, oracle} with numbers >= 0"
+    if not isinstance(score.get("heldout_episodes"), int):
+        return f"`heldout_episodes` must be an integer (got {score.get('heldout_episodes')!r})"
+    return None
 
 
 def _order(methods: set[str]) -> list[str]:

@@ -26,7 +26,7 @@ from lerobot_skillret.pipeline.config import PipelineConfig
 from lerobot_skillret.pipeline.methods import METHODS
 from lerobot_skillret.pipeline.plan import Cell, Plan
 from lerobot_skillret.pipeline.protocol import publish_cell, read_loss_curve, summarise_cell
-from lerobot_skillret.pipeline.results import PUBLISHED_HELDOUT, collect, write_report
+from lerobot_skillret.pipeline.results import collect, collect_heldout, write_report
 from lerobot_skillret.pipeline.stages import Cancelled, Stage, StageRunner
 
 log = logging.getLogger("skillret.pipeline")
@@ -127,7 +127,9 @@ def _results_dir(cfg: PipelineConfig) -> Path | None:
 
 def _report(plan: Plan) -> str:
     """The tables of every finished cell of the output folder, including other processes' or other method lists'."""
-    return write_report(collect(plan.root, Plan.CELL_SUMMARIES), plan.root, collect(plan.root, plan.heldout_scores()))
+    return write_report(
+        collect(plan.root, Plan.CELL_SUMMARIES), plan.root, collect_heldout(plan.root, plan.heldout_scores())
+    )
 
 
 def run(cfg: PipelineConfig) -> Path:
@@ -157,7 +159,7 @@ def heldout(cfg: PipelineConfig) -> None:
     run_heldout(plan, _runner(cfg, plan), results_dir)
     print(_report(plan))
     if results_dir is not None and results_dir.is_dir():
-        write_report(collect(results_dir), results_dir, collect(results_dir, PUBLISHED_HELDOUT))
+        write_report(collect(results_dir), results_dir, collect_heldout(results_dir))
         log.info("tables refreshed: %s", results_dir / "results.md")
 
 
@@ -261,7 +263,7 @@ def main(argv: list[str] | None = None) -> None:
         if not cells:  # an empty table would replace the folder's results.md and plots
             hint = (
                 "it is a run's output_dir, whose results.md every `skillret-pipeline run` rewrites; "
-                if collect(args.results, Plan.CELL_SUMMARIES)
+                if any(args.results.glob(Plan.CELL_SUMMARIES))
                 else ""
             )
             parser.exit(
@@ -269,7 +271,7 @@ def main(argv: list[str] | None = None) -> None:
                 f"skillret-pipeline: no <method>/<task>/seed<s>/cell.json under {args.results} ({hint}pass a "
                 "results_dir, e.g. benchmarks/results/comparison); nothing written.\n",
             )
-        print(write_report(cells, args.results, collect(args.results, PUBLISHED_HELDOUT)))
+        print(write_report(cells, args.results, collect_heldout(args.results)))
 
 
 if __name__ == "__main__":
