@@ -95,6 +95,23 @@ def test_nan_in_the_dataset_statistics_names_the_feature(prior_root):
         SkillRetPolicy(policy.config, dataset_stats=stats, dataset_meta=meta)
 
 
+def test_a_dataset_of_another_layout_than_the_checkpoint_is_named(prior_root):
+    """Stage 2 from a checkpoint (--policy.path) on a target dataset with another state size or without a feature:
+    lerobot-train hands the target's statistics to the checkpoint's config, which failed with a raw size mismatch
+    ("The size of tensor a (6) must match ... (8)") or a KeyError about statistics."""
+    meta = LeRobotDatasetMetadata(PRIOR_REPO, root=prior_root)
+    config = build_policy(tiny_config(), PRIOR_REPO, prior_root).config
+    wider = {key: dict(value) for key, value in meta.stats.items()}
+    wider["observation.state"] = {name: [0.5] * 8 for name in ("mean", "std", "min", "max")}
+    with pytest.raises(
+        ValueError, match=r"dataset's `observation.state` has 8 values per frame, the policy's 6.*--policy.path"
+    ):
+        SkillRetPolicy(config, dataset_stats=wider, dataset_meta=meta)
+    missing = {key: value for key, value in meta.stats.items() if key != "observation.environment_state"}
+    with pytest.raises(ValueError, match=r"no statistics for `observation.environment_state`.*same robot, keys"):
+        SkillRetPolicy(config, dataset_stats=missing, dataset_meta=meta)
+
+
 def test_an_observation_of_another_shape_than_trained_is_named(prior_root):
     """An env giving other observations than the policy was trained on (another image size, another state layout)
     used to run silently (a larger image is centre-cropped) or fail deep in a reshape."""

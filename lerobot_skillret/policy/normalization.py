@@ -60,9 +60,17 @@ class SkillNormalizer(nn.Module):
 
     def set_stats(self, stats: Mapping[str, Mapping[str, object]]) -> None:
         """Copy dataset statistics (LeRobot's `meta.stats` layout) into the buffers."""
+        layout = (
+            "a policy started from a checkpoint (--policy.path) needs a dataset with the checkpoint's observation and "
+            "action layout (same robot, keys and sizes): record the target like the prior, or train stage 1 on data "
+            "with this dataset's layout"
+        )
         for key, mode in self.modes.items():
             if key not in stats:
-                raise KeyError(f"skillret normalisation: the dataset statistics have no entry for `{key}`.")
+                raise ValueError(
+                    f"skillret normalisation: the dataset has no statistics for `{key}`, a feature the policy reads; "
+                    f"{layout}."
+                )
             entry = {
                 name: torch.as_tensor(np.asarray(value), dtype=torch.float32).reshape(-1)
                 for name, value in stats[key].items()
@@ -72,6 +80,13 @@ class SkillNormalizer(nn.Module):
                 raise ValueError(
                     f"skillret normalisation: the dataset statistics of `{key}` hold NaN or inf, so the dataset has "
                     "non-finite values in that feature: regenerate the dataset or drop the episodes that hold them."
+                )
+            size = getattr(self, f"{_buffer_name(key)}_shift").numel()
+            if any(value.numel() != size for value in entry.values()):
+                sizes = sorted({value.numel() for value in entry.values()})
+                raise ValueError(
+                    f"skillret normalisation: the dataset's `{key}` has {sizes[0]} values per frame, the policy's "
+                    f"{size}; {layout}."
                 )
             if mode is NormalizationMode.MEAN_STD:
                 shift, scale = entry["mean"], entry["std"]
