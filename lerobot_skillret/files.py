@@ -21,6 +21,9 @@ _UMASK = os.umask(0o022)  # read once at import (os.umask can only be read by se
 os.umask(_UMASK)
 
 
+PRETRAINED = Path("checkpoints/last/pretrained_model")  # a lerobot-train run's latest checkpoint, in its output_dir
+
+
 def write_atomic(path: str | Path, write: Callable[[str], None]) -> Path:
     """Call `write(tmp_path)`, then rename the temporary file onto `path` (the parent folder is created). The file
     gets the permissions a plain `open(path, "w")` would give (mkstemp's are owner-only)."""
@@ -86,6 +89,16 @@ def check_replaceable_dir(path: Path, marker: str, hint: str) -> None:
         raise ValueError(f"{path} is a file, not a folder: {hint}")
     if path.is_dir() and any(path.iterdir()) and not (path / marker).is_file():
         raise ValueError(f"{path} already holds other files, which writing there would delete: {hint}")
+
+
+def check_creatable(path: Path, option: str) -> None:
+    """Refuse an output `path` below a file (`--output run.json/x.safetensors`) before any work, not when the
+    result is written at the end; `option` names the command-line option."""
+    for parent in path.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise ValueError(f"{option} {path}: {parent} is a file, not a folder; pass a path inside a folder.")
+            return
 
 
 def _alive(pid: int) -> bool:

@@ -150,6 +150,12 @@ def test_bad_inputs_have_clear_errors(setup, tmp_path, capsys, monkeypatch):
     missing = cli_args(setup, output)
     missing[1] = str(tmp_path / "nowhere")
     fails(missing, "does not exist")
+    missing[1] = str(setup["checkpoint"] / "config.json")
+    fails(missing, "config.json is a file, not a checkpoint folder")
+    run = tmp_path / "run"
+    shutil.copytree(setup["checkpoint"], run / "checkpoints" / "last" / "pretrained_model")
+    missing[1] = str(run)
+    fails(missing, f"{run} is a training run's folder: pass its checkpoint {run}/checkpoints/last/pretrained_model")
     broken = tmp_path / "broken"
     broken.mkdir()
     (broken / "config.json").write_text(json.dumps({"type": "skillret"}))
@@ -170,6 +176,11 @@ def test_bad_inputs_have_clear_errors(setup, tmp_path, capsys, monkeypatch):
     with monkeypatch.context() as patch:  # refused before the windows are encoded, the run's expensive part
         patch.setattr(api, "encode_windows", lambda *args, **kwargs: pytest.fail("encoded before refusing"))
         fails(cli_args(setup, output, "--fraction", "0.0001"), "retrieves no window (round(r * N) = 0)")
+        a_file = tmp_path / "a_file"
+        a_file.write_text("")
+        fails(cli_args(setup, a_file / "ret.safetensors"), f"--output {a_file}/ret.safetensors: {a_file} is a file")
+        report = ["--report-dir", str(a_file / "sub" / "report")]
+        fails(cli_args(setup, output, *report), f"{a_file} is a file, not a folder")
     assert not output.exists()
 
 

@@ -23,6 +23,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
+from lerobot_skillret.files import PRETRAINED
 from lerobot_skillret.kitchen.fingerprint import kitchen_fingerprint
 from lerobot_skillret.kitchen.seeds import EVAL_SEED0
 from lerobot_skillret.pipeline.config import PipelineConfig, TrainSpec, cli_args
@@ -31,7 +32,6 @@ from lerobot_skillret.pipeline.stages import Stage
 from lerobot_skillret.retrieval.cli import as_arguments
 
 BIN = Path(sys.executable).parent
-PRETRAINED = Path("checkpoints/last/pretrained_model")
 
 
 @dataclass(frozen=True)

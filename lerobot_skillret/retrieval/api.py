@@ -25,7 +25,7 @@ from tqdm.auto import tqdm
 from lerobot_skillret.data.fingerprint import checkpoint_fingerprint, dataset_fingerprint
 from lerobot_skillret.data.labels import PRIMITIVE_KEY, load_label_names
 from lerobot_skillret.data.retrieval_file import RetrievalResult
-from lerobot_skillret.files import check_replaceable_dir, read_json, staged_dir
+from lerobot_skillret.files import PRETRAINED, check_creatable, check_replaceable_dir, read_json, staged_dir
 from lerobot_skillret.retrieval.kernels import NearestTarget, Selection, smallest
 from lerobot_skillret.retrieval.report import ReportInputs, label_names, relevant_labels, write_report
 from lerobot_skillret.retrieval.settings import EVERY_WINDOW, RetrievalSettings
@@ -78,7 +78,10 @@ def retrieve(
         raise ValueError(
             f"--output {output} is a folder: pass the retrieval file's path (e.g. {output}/retrieval.safetensors)"
         )
+    if output is not None:
+        check_creatable(Path(output), "--output")
     if report_dir is not None:
+        check_creatable(Path(report_dir), "--report-dir")
         check_replaceable_dir(Path(report_dir), "summary.json", "pass a new or empty folder (e.g. <output>_report)")
     pretrained = resolve_checkpoint(checkpoint)
     policy = load_skill_model(pretrained, device)
@@ -152,9 +155,12 @@ def resolve_checkpoint(path: str | Path) -> Path:
     path = Path(path)
     if (path / "pretrained_model").is_dir():
         path = path / "pretrained_model"
+    if (path / PRETRAINED).is_dir():  # a run's output_dir
+        raise FileNotFoundError(f"{path} is a training run's folder: pass its checkpoint {path / PRETRAINED}.")
     if not path.is_dir():
+        state = "is a file, not a checkpoint folder" if path.exists() else "does not exist"
         raise FileNotFoundError(
-            f"Stage-1 checkpoint {path} does not exist. Pass the `pretrained_model` folder of a skills run, e.g. "
+            f"Stage-1 checkpoint {path} {state}. Pass the `pretrained_model` folder of a skills run, e.g. "
             "outputs/train/<run>/checkpoints/last/pretrained_model (lerobot-train --policy.type=skillret "
             "--policy.stage=skills)."
         )
