@@ -175,6 +175,26 @@ def test_cache_reused_then_invalidated(tmp_path, monkeypatch):
     assert leftovers == [f"columns-v{windows.CACHE_VERSION}-{changed.fingerprint}"]  # stale one removed
 
 
+@pytest.mark.parametrize("damage", ["truncate", "delete", "info"])
+def test_a_damaged_cache_is_rebuilt_not_read_as_zeros(tmp_path, caplog, damage):
+    """A column file cut short (a copy, a full disk) was mapped with zeros in its missing part, silently."""
+    root = make_synthetic_dataset(tmp_path / "ds", num_episodes=3)
+    first = EpisodeColumns.from_dataset(REPO, root, cache_dir=tmp_path / "cache")
+    expected = first.td["observation.state"].clone()
+    (folder,) = (tmp_path / "cache").glob("columns-*")
+    column = folder / "td" / "observation.state.memmap"
+    if damage == "truncate":
+        os.truncate(column, column.stat().st_size // 2)
+    elif damage == "delete":
+        column.unlink()
+    else:
+        (folder / "columns.json").write_text('{"features": {')
+    with caplog.at_level("WARNING"):
+        again = EpisodeColumns.from_dataset(REPO, root, cache_dir=tmp_path / "cache")
+    assert torch.equal(again.td["observation.state"], expected)
+    assert "is damaged" in caplog.text and "rebuilding it" in caplog.text
+
+
 def test_shared_cache_dir_keeps_every_datasets_cache(tmp_path, monkeypatch):
     """Two datasets sharing one cache_dir never evict each other's cache."""
     cache = tmp_path / "cache"

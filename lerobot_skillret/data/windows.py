@@ -52,7 +52,7 @@ from lerobot_skillret.files import read_json
 
 log = logging.getLogger(__name__)
 CACHE_DIRNAME = ".skillret_cache"
-CACHE_VERSION = 1  # bump when the cache layout or the exported columns change
+CACHE_VERSION = 2  # bump when the cache layout or the exported columns change
 BOUND_KEYS = ("episode_start", "episode_end")
 _REQUIRED_KEYS = ("index", "episode_index", "frame_index")
 _SKIPPED_DTYPES = ("image", "video", "string")
@@ -96,14 +96,24 @@ class EpisodeColumns:
         wanted = None if keys is None else sorted(set(keys) | set(_REQUIRED_KEYS))
         name = f"columns-v{CACHE_VERSION}-{fingerprint}" + ("" if wanted is None else f"-{_keys_tag(wanted)}")
         final = cache_dir / name
-        if not (final / _INFO_FILE).is_file():
-            _build_cache(repo_id, root, fingerprint, wanted, cache_dir, final)
-            _remove_stale(cache_dir, keep=name, root=root)
+        if (final / _INFO_FILE).is_file():
+            try:
+                return cls._load(final)
+            except (ValueError, OSError, RuntimeError) as error:  # a cache is rebuilt, never trusted when damaged
+                log.warning("the column cache %s is damaged (%s): rebuilding it", final, error)
+                shutil.rmtree(final, ignore_errors=True)
+        _build_cache(repo_id, root, fingerprint, wanted, cache_dir, final)
+        _remove_stale(cache_dir, keep=name, root=root)
         return cls._load(final)
 
     @classmethod
     def _load(cls, folder: Path) -> EpisodeColumns:
         info = read_json(folder / _INFO_FILE)
+        # a column file cut short (a copy, a full disk) would be mapped with zeros in its missing part, silently (the
+        # mapping even extends the file), so the sizes are checked against the export's before mapping
+        short = [key for key, size in info["bytes"].items() if _file_size(folder / "td" / f"{key}.memmap") < size]
+        if short:
+            raise ValueError(f"the column file(s) of {short} are shorter than their data")
         td = TensorDict.load_memmap(folder / "td")
         return cls(
             td=td,
@@ -125,6 +135,10 @@ def _check_root(root: Path) -> None:
             f"The LeRobotDataset at {root} has zero frames: record or generate at least one episode "
             "(add_frame + save_episode, then finalize) before sampling windows from it."
         )
+
+
+def _file_size(path: Path) -> int:
+    return path.stat().st_size if path.is_file() else -1
 
 
 def _keys_tag(keys: list[str]) -> str:
@@ -225,6 +239,7 @@ def _build_cache(
     td, info = _export(repo_id, root, wanted)
     info["fingerprint"] = fingerprint
     info["root"] = str(root.resolve())
+    info["bytes"] = {key: column.nbytes for key, column in td.items()}
     cache_dir.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{final.name}-{uuid.uuid4().hex[:6]}-", dir=cache_dir))
     try:
