@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import os
+import re
 import shutil
 import threading
 from pathlib import Path
@@ -288,6 +290,23 @@ def test_missing_root_and_empty_dataset(tmp_path):
     empty.finalize()
     with pytest.raises(ValueError, match="zero frames"):
         EpisodeColumns.from_dataset(REPO, tmp_path / "e")
+
+
+@pytest.mark.parametrize(
+    ("edit", "problem"),
+    [
+        (lambda info: [], "it holds a list"),
+        (lambda info: {k: v for k, v in info.items() if k != "fps"}, "argument: 'fps'"),
+        (lambda info: {**info, "features": "x"}, "'str' object has no attribute"),
+    ],
+)
+def test_a_damaged_info_json_is_named(tmp_path, edit, problem):
+    """A hand-edited or half-copied meta/info.json gave LeRobot's TypeError / AttributeError with no file named."""
+    root = make_synthetic_dataset(tmp_path / "ds", num_episodes=2)
+    info = root / "meta" / "info.json"
+    info.write_text(json.dumps(edit(json.loads(info.read_text()))))
+    with pytest.raises(ValueError, match=f"{info} is damaged \\(.*{re.escape(problem)}.*regenerate the dataset"):
+        EpisodeColumns.from_dataset(REPO, root)
 
 
 def test_sampler_argument_errors(columns):

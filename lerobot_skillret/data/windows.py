@@ -130,11 +130,21 @@ def _check_root(root: Path) -> None:
             f"No LeRobotDataset at {root} (missing meta/info.json). Pass the dataset's local root folder "
             "(the one holding meta/ and data/), e.g. the output folder of `skillret-generate`."
         )
-    if read_json(root / "meta" / "info.json").get("total_frames", 0) == 0:
+    info = read_json(root / "meta" / "info.json")
+    if not isinstance(info, dict):
+        raise _damaged_info(root, f"it holds a {type(info).__name__}, not LeRobot's mapping of dataset facts")
+    if info.get("total_frames", 0) == 0:
         raise ValueError(
             f"The LeRobotDataset at {root} has zero frames: record or generate at least one episode "
             "(add_frame + save_episode, then finalize) before sampling windows from it."
         )
+
+
+def _damaged_info(root: Path, problem: str) -> ValueError:
+    return ValueError(
+        f"The dataset's {root / 'meta' / 'info.json'} is damaged ({problem}): restore it from a copy or regenerate "
+        "the dataset (skillret-generate, or LeRobotDataset.create + save_episode + finalize)."
+    )
 
 
 def _file_size(path: Path) -> int:
@@ -166,6 +176,8 @@ def _export(repo_id: str, root: Path, wanted: list[str] | None) -> tuple[TensorD
             f"Cannot read the data files of the dataset at {root} ({error.__cause__ or error}): a parquet file under "
             "data/ is truncated or corrupt (a copy, a full disk). Regenerate the dataset or restore its files."
         ) from None
+    except (TypeError, AttributeError, KeyError) as error:  # LeRobot's metadata reader on fields missing or mistyped
+        raise _damaged_info(root, str(error)) from None
     num_frames = len(dataset.hf_dataset)
     lowdim = {k: ft for k, ft in dataset.features.items() if ft["dtype"] not in _SKIPPED_DTYPES}
     if wanted is not None:
