@@ -127,11 +127,13 @@ def test_overwrite_replaces_only_a_dataset_never_another_folder_or_a_file(tmp_pa
     (mine / "notes.txt").write_text("keep me")
     a_file = tmp_path / "a_file"
     a_file.write_text("keep me too")
-    for root, reason in ((mine, "already holds other files"), (a_file, "is a file")):
-        args = ["play", "--episodes", "1", "--steps-per-episode", "5", "--workers", "0", "--overwrite"]
-        with pytest.raises(SystemExit) as stop:
-            G.main([*args, "--root", str(root)])
-        assert reason in str(stop.value.code) and "--root" in str(stop.value.code)
+    cases = [(mine, "already holds other files"), (a_file, "is a file"), (a_file / "sub", f"{a_file} is a file")]
+    for root, reason in cases:
+        for overwrite in (["--overwrite"], []):  # without it a file was "already exists; pass --overwrite"
+            args = ["play", "--episodes", "1", "--steps-per-episode", "5", "--workers", "0", *overwrite]
+            with pytest.raises(SystemExit) as stop:
+                G.main([*args, "--root", str(root)])
+            assert reason in str(stop.value.code) and "--root" in str(stop.value.code)
     assert (mine / "notes.txt").read_text() == "keep me" and a_file.read_text() == "keep me too"
 
 

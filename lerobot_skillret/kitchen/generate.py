@@ -28,7 +28,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from lerobot_skillret.data.labels import write_label_names
-from lerobot_skillret.files import check_replaceable_dir, staged_dir
+from lerobot_skillret.files import check_creatable, check_replaceable_dir, staged_dir
 from lerobot_skillret.kitchen import observations as O
 from lerobot_skillret.kitchen.collect import PLAY_TASK_TEXT, Episode, EpisodeJob, episode_jobs, run_episode
 from lerobot_skillret.kitchen.layout import CONTROL_FREQ
@@ -136,9 +136,10 @@ def generate(args: argparse.Namespace) -> Path:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     root = Path(args.root).expanduser().resolve()
+    check_creatable(root, "--root")
+    check_replaceable_dir(root, "meta/info.json", "choose a new --root (--overwrite only replaces a dataset)")
     if root.exists() and not args.overwrite:
         raise FileExistsError(f"{root} already exists; pass --overwrite or choose another --root")
-    check_replaceable_dir(root, "meta/info.json", "choose a new --root (--overwrite only replaces a dataset)")
     features = O.dataset_features(tuple(args.cameras), O.DEFAULT_IMAGE_SIZE)
     jobs = episode_jobs(args.kind, args.seed, args.episodes, args.task, args.steps_per_episode, tuple(args.cameras))
     episodes_meta, attempts, failures, primitive_frames, logs = [], 0, 0, Counter(), []
