@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 
 from lerobot_skillret.pipeline.config import BaselineSpecs, EvalSpec, PipelineConfig, RetrievalSpec, TrainSpec
 from lerobot_skillret.pipeline.methods import METHODS
@@ -309,6 +310,10 @@ def test_config_rejects_typos_and_missing_baselines(tmp_path: Path) -> None:
     path.write_text("methods: [skillret_policy_decoder]\npolicy: {args: {policy.finetune_skills: false}}\n")
     with pytest.raises(ValueError, match=r"`policy` with skillret_policy_decoder's own options .*finetune_skills=true"):
         PipelineConfig.from_args(path)  # the method's own option (decoder_policy_weight) needs the fine-tuning
+    skills_yaml = tmp_path / "skills.yaml"  # lerobot-train also reads YAML config files; stage 2 starts from its H
+    skills_yaml.write_text(yaml.safe_dump({"policy": {"type": "skillret", "horizon": 15}, "steps": 10}))
+    path.write_text(f"skills: {{config_path: {skills_yaml}}}\npolicy: {{args: {{policy.skill_steps: 12}}}}\n")
+    assert PipelineConfig.from_args(path).policy.args == {"policy.skill_steps": 12}
     path.write_text("skills: {steps: 1.5}\n")
     with pytest.raises(ValueError, match=r"`skills\.steps`: Couldn't parse '1\.5' into an int"):
         PipelineConfig.from_args(path)
@@ -784,9 +789,15 @@ def test_table_refuses_a_hand_edited_cell_naming_the_field(tmp_path: Path, edit:
     path.write_text(json.dumps({"method": "skillret", "task": "cook", "success": 0.5, "n_episodes": 50}))
     assert collect(tmp_path)[("skillret", "cook")]  # a cell from before subtask progress was recorded still reads
     heldout = path.parent / HELDOUT_FILE
-    heldout.write_text(json.dumps({"method": "skillret", "task": "cook", "checkpoints": [{"step": 5}]}))
+    diverged = {"step": 5, "policy": float("nan"), "oracle": 0.1}  # a score to show, not a damaged file
+    score = {"method": "skillret", "task": "cook", "heldout_episodes": 10, "checkpoints": [diverged]}
+    heldout.write_text(json.dumps(score))
+    assert collect_heldout(tmp_path)[("skillret", "cook")]
+    heldout.write_text(json.dumps(score | {"checkpoints": [{"step": 5}]}))
     with pytest.raises(ValueError, match=r"`checkpoints` must be a list of \{step, policy, oracle\}"):
         collect_heldout(tmp_path)
+    result = _pipeline_cli("table", "--results", str(tmp_path))  # was a traceback: outside the command's try
+    assert result.returncode == 2 and "`checkpoints` must be" in result.stderr and "Traceback" not in result.stderr
 
 
 def test_heldout_on_an_output_dir_without_trained_cells_is_an_error(tmp_path: Path, capsys) -> None:
@@ -799,6 +810,9 @@ def test_heldout_on_an_output_dir_without_trained_cells_is_an_error(tmp_path: Pa
     assert exit_info.value.code == 2
     assert f"no trained skillret-variant cell in {tmp_path / 'typo'}" in capsys.readouterr().err
     assert not (tmp_path / "typo").exists()
+    with pytest.raises(SystemExit):
+        run_module.main(["heldout", "--config", str(config), "--methods=[act]", "--baselines.act={steps: 5}"])
+    assert "hold no skillret variant to score" in capsys.readouterr().err
 
 
 def test_run_refuses_to_start_without_the_lerobot_plugin(tmp_path: Path, monkeypatch, capsys) -> None:

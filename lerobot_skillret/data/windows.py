@@ -99,7 +99,7 @@ class EpisodeColumns:
         if (final / _INFO_FILE).is_file():
             try:
                 return cls._load(final)
-            except (ValueError, OSError, RuntimeError) as error:  # a cache is rebuilt, never trusted when damaged
+            except (ValueError, OSError, RuntimeError, KeyError, TypeError) as error:  # rebuilt, never trusted
                 log.warning("the column cache %s is damaged (%s): rebuilding it", final, error)
                 shutil.rmtree(final, ignore_errors=True)
         _build_cache(repo_id, root, fingerprint, wanted, cache_dir, final)
@@ -111,9 +111,9 @@ class EpisodeColumns:
         info = read_json(folder / _INFO_FILE)
         # a column file cut short (a copy, a full disk) would be mapped with zeros in its missing part, silently (the
         # mapping even extends the file), so the sizes are checked against the export's before mapping
-        short = [key for key, size in info["bytes"].items() if _file_size(folder / "td" / f"{key}.memmap") < size]
+        short = [name for name, size in info["bytes"].items() if _file_size(folder / "td" / name) < size]
         if short:
-            raise ValueError(f"the column file(s) of {short} are shorter than their data")
+            raise ValueError(f"the column file(s) {short} are shorter than when written")
         td = TensorDict.load_memmap(folder / "td")
         return cls(
             td=td,
@@ -132,7 +132,8 @@ def _check_root(root: Path) -> None:
         )
     info = read_json(root / "meta" / "info.json")
     if not isinstance(info, dict):
-        raise _damaged_info(root, f"it holds a {type(info).__name__}, not LeRobot's mapping of dataset facts")
+        problem = f"it holds a {type(info).__name__}, not LeRobot's mapping of dataset facts"
+        raise _damaged_metadata(root / "meta" / "info.json", problem)
     if info.get("total_frames", 0) == 0:
         raise ValueError(
             f"The LeRobotDataset at {root} has zero frames: record or generate at least one episode "
@@ -140,10 +141,11 @@ def _check_root(root: Path) -> None:
         )
 
 
-def _damaged_info(root: Path, problem: str) -> ValueError:
+def _damaged_metadata(path: Path, problem: str) -> ValueError:
+    """`path`: the metadata file or folder (meta/) that LeRobot could not read."""
     return ValueError(
-        f"The dataset's {root / 'meta' / 'info.json'} is damaged ({problem}): restore it from a copy or regenerate "
-        "the dataset (skillret-generate, or LeRobotDataset.create + save_episode + finalize)."
+        f"The dataset's metadata {path} is damaged ({problem}): restore it from a copy or regenerate the dataset "
+        "(skillret-generate, or LeRobotDataset.create + save_episode + finalize)."
     )
 
 
@@ -177,7 +179,7 @@ def _export(repo_id: str, root: Path, wanted: list[str] | None) -> tuple[TensorD
             "data/ is truncated or corrupt (a copy, a full disk). Regenerate the dataset or restore its files."
         ) from None
     except (TypeError, AttributeError, KeyError) as error:  # LeRobot's metadata reader on fields missing or mistyped
-        raise _damaged_info(root, str(error)) from None
+        raise _damaged_metadata(root / "meta", str(error)) from None
     num_frames = len(dataset.hf_dataset)
     lowdim = {k: ft for k, ft in dataset.features.items() if ft["dtype"] not in _SKIPPED_DTYPES}
     if wanted is not None:
@@ -251,11 +253,11 @@ def _build_cache(
     td, info = _export(repo_id, root, wanted)
     info["fingerprint"] = fingerprint
     info["root"] = str(root.resolve())
-    info["bytes"] = {key: column.nbytes for key, column in td.items()}
     cache_dir.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".tmp-{final.name}-{uuid.uuid4().hex[:6]}-", dir=cache_dir))
     try:
         td.memmap_(tmp / "td")
+        info["bytes"] = {path.name: path.stat().st_size for path in (tmp / "td").glob("*.memmap")}  # as written
         (tmp / _INFO_FILE).write_text(json.dumps(info, indent=1))
         try:
             tmp.rename(final)

@@ -7,7 +7,6 @@ stock `lerobot-train` run; its options are written exactly as on the command lin
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -44,8 +43,9 @@ def cli_args(options: dict[str, Any]) -> list[str]:
 
 
 # Options the pipeline itself gives every stage of a command: where the data, the outputs and the policy come from,
-# the seed, and what makes a method that method. Given in a section's `args` as well, they would reach the command
-# twice, the later one winning silently.
+# the seed, and what makes a method that method. Given in a section's `args` as well, one of the two values would be
+# dropped silently. (`policy.prior_root: null` stays allowed: with `policy.prior_repo_id: null` it is how a config
+# trains a prior-skill variant without its prior windows.)
 PIPELINE_OPTIONS = {
     "lerobot-train": (
         "dataset.repo_id",
@@ -53,14 +53,11 @@ PIPELINE_OPTIONS = {
         "output_dir",
         "job_name",
         "seed",
-        "config_path",
         "policy.type",
         "policy.path",
         "policy.stage",
         "policy.use_retrieval",
         "policy.retrieval_path",
-        "policy.prior_repo_id",
-        "policy.prior_root",
     ),
     "lerobot-eval": ("policy.path", "env.type", "env.task", "seed", "output_dir"),
     "skillret-retrieve": (
@@ -77,7 +74,7 @@ PIPELINE_OPTIONS = {
 # Options that a section's own field sets (`skills.steps: 1000` is `--steps=1000`): the field is what the pipeline
 # reads back (which checkpoints exist, how many rollouts), so it must be the only place the value is given.
 SECTION_FIELDS = {
-    "lerobot-train": {name: name for name in ("steps", "batch_size", "save_freq", "num_workers")},
+    "lerobot-train": {name: name for name in ("steps", "batch_size", "save_freq", "num_workers", "config_path")},
     "lerobot-eval": {
         "eval.n_episodes": "n_episodes",
         "eval.batch_size": "batch_size",
@@ -103,13 +100,14 @@ def _check_owned_options(where: str, options: dict[str, Any], command: str) -> N
             )
 
 
-def _policy_values(spec: TrainSpec) -> dict[str, Any]:
-    """The policy settings a training section gives: its config file's `policy` section, then its `policy.*` args."""
+def _policy_values(spec: TrainSpec, with_file: bool = True) -> dict[str, Any]:
+    """The policy settings a training section gives: its config file's `policy` section (`with_file`: a run from a
+    checkpoint, --policy.path, takes the checkpoint's instead), then its `policy.*` args."""
     values: dict[str, Any] = {}
-    if spec.config_path is not None and Path(spec.config_path).is_file():  # a missing one is refused by the caller
-        try:
-            values = dict(json.loads(Path(spec.config_path).read_text()).get("policy", {}))
-        except (ValueError, AttributeError) as err:
+    if with_file and spec.config_path is not None and Path(spec.config_path).is_file():  # a missing one: refused
+        try:  # lerobot-train reads JSON or YAML config files; YAML reads both
+            values = dict(yaml.safe_load(Path(spec.config_path).read_text()).get("policy") or {})
+        except (yaml.YAMLError, AttributeError, TypeError, ValueError) as err:
             raise ValueError(f"pipeline config: {spec.config_path} is no lerobot-train config file: {err}") from None
     for key, value in spec.args.items():
         if key.startswith("policy."):
@@ -129,9 +127,9 @@ def _check_policy_values(where: str, values: dict[str, Any], policy_type: str, n
     if not values:
         return
     (config_class,) = _policy_configs([policy_type])
-    try:
-        draccus.decode(config_class, values)
-    except draccus.utils.ParsingError as err:
+    try:  # a device given, so that LeRobot does not log its device auto-selection for a config only checked here
+        draccus.decode(config_class, {"device": "cpu", **values})
+    except (draccus.utils.ParsingError, NotImplementedError) as err:  # ACT: NotImplementedError for some settings
         # a value of the wrong type (DecodingError) names itself; a value the config's own check refused is the cause
         reason = err if isinstance(err, draccus.utils.DecodingError) else err.__cause__ or err
         raise ValueError(f"pipeline config: `{where}`{note} gives {policy_type} a value it refuses: {reason}") from None
@@ -142,7 +140,7 @@ def _check_option_keys(where: str, options: dict[str, Any], command: str, policy
     refuse it when its stage starts, after the data and stage 1): its first part must be a field of the command's
     config, and its second a field of that section (`dataset`, the kitchen `env`, or the config of every policy
     type in `policy_types` the options reach)."""
-    if not options:  # the usual case: no config classes to import
+    if not options:
         return
     from lerobot.configs.default import DatasetConfig
     from lerobot.configs.eval import EvalPipelineConfig
@@ -361,8 +359,8 @@ class PipelineConfig:
                 )
         starts_from = {"policy": "skills", "baselines.act_ft": "baselines.act_ft_prior"}  # its checkpoint's run
         for spec_name, spec in specs.items():
-            base = specs.get(starts_from.get(spec_name, ""))
-            values = {**(_policy_values(base) if base is not None else {}), **_policy_values(spec)}
+            base = specs.get(starts_from.get(spec_name, ""))  # then the spec's own file is not read (--policy.path)
+            values = _policy_values(spec) if base is None else _policy_values(base) | _policy_values(spec, False)
             variants = {"": {}}  # the skillret variants add their own options to stage 2 (`Method.policy_args`)
             if spec_name == "policy":
                 variants |= {

@@ -80,8 +80,12 @@ def run_heldout(plan: Plan, runner: StageRunner, results_dir: Path | None) -> No
     Cells whose stage-2 run has not finished are left out; a stored score is reused while it covers the checkpoints
     the protocol evaluates. Scores are copied next to the cells' published eval JSONs in `results_dir`."""
     trained = [c for c in plan.cells() if METHODS[c.method].is_skillret and plan.train_dir(c).is_dir()]
+    cfg = plan.cfg
+    if not any(METHODS[m].is_skillret for m in cfg.methods):
+        raise ValueError(
+            f"the config's methods {cfg.methods} hold no skillret variant to score (LeRobot baselines only)."
+        )
     if not trained:  # a mistyped --output_dir or a config of another run: say so rather than exit 0 with no score
-        cfg = plan.cfg
         raise ValueError(
             f"no trained skillret-variant cell in {plan.root} (methods {cfg.methods}, tasks {cfg.tasks}, seeds "
             f"{cfg.seeds}): pass the config and --output_dir of a `skillret-pipeline run` that trained them."

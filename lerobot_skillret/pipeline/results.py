@@ -51,8 +51,11 @@ def _grouped(folder: Path, pattern: str, check: Callable[[dict], str | None]) ->
     return dict(records)
 
 
-def _is_number(value: object, low: float, high: float = math.inf) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and low <= value <= high
+def _is_number(value: object, low: float, high: float = math.inf, nan: bool = False) -> bool:
+    """`value` is a number in [low, high] (or NaN, where `nan`)."""
+    if not isinstance(value, int | float) or isinstance(value, bool):
+        return False
+    return low <= value <= high or (nan and math.isnan(value))
 
 
 def _check_cell(cell: dict) -> str | None:
@@ -69,7 +72,9 @@ def _check_heldout(score: dict) -> str | None:
     """What makes the held-out `score` unreadable for its table, if anything."""
     rows = score.get("checkpoints")
     fine = isinstance(rows, list) and rows and all(isinstance(r, dict) for r in rows)
-    if not fine or not all(_is_number(r.get(k), 0) for r in rows for k in ("step", "policy", "oracle")):
+    steps = fine and all(_is_number(r.get("step"), 0) for r in rows)
+    # an error is NaN where a checkpoint diverged: a score to show, not a damaged file
+    if not steps or not all(_is_number(r.get(k), 0, nan=True) for r in rows for k in ("policy", "oracle")):
         return "`checkpoints` must be a list of {step, policy, oracle} with numbers >= 0"
     if not isinstance(score.get("heldout_episodes"), int):
         return f"`heldout_episodes` must be an integer (got {score.get('heldout_episodes')!r})"

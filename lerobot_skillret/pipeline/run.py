@@ -150,7 +150,7 @@ def run(cfg: PipelineConfig) -> Path:
 def heldout(cfg: PipelineConfig) -> None:
     """Score the trained skillret-variant cells of `cfg` on held-out demos; refresh the tables of the output folder
     and of `results_dir`."""
-    from lerobot_skillret.pipeline.heldout import run_heldout  # torch and the policy: only this command needs them
+    from lerobot_skillret.pipeline.heldout import run_heldout  # the policy model: only this command needs it
 
     plan = Plan(cfg)
     results_dir = _results_dir(cfg)
@@ -257,8 +257,8 @@ def main(argv: list[str] | None = None) -> None:
         if not args.results.is_dir():
             parser.exit(2, f"skillret-pipeline: {args.results} does not exist: no finished cells yet.\n")
         try:
-            cells = collect(args.results)
-        except ValueError as err:  # a cell.json cut short
+            cells, heldout_scores = collect(args.results), collect_heldout(args.results)
+        except ValueError as err:  # a record cut short or edited by hand
             parser.exit(2, f"skillret-pipeline: {err}\n")
         if not cells:  # an empty table would replace the folder's results.md and plots
             hint = (
@@ -271,7 +271,7 @@ def main(argv: list[str] | None = None) -> None:
                 f"skillret-pipeline: no <method>/<task>/seed<s>/cell.json under {args.results} ({hint}pass a "
                 "results_dir, e.g. benchmarks/results/comparison); nothing written.\n",
             )
-        print(write_report(cells, args.results, collect_heldout(args.results)))
+        print(write_report(cells, args.results, heldout_scores))
 
 
 if __name__ == "__main__":

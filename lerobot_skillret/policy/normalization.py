@@ -82,10 +82,10 @@ class SkillNormalizer(nn.Module):
                     "non-finite values in that feature: regenerate the dataset or drop the episodes that hold them."
                 )
             size = getattr(self, f"{_buffer_name(key)}_shift").numel()
-            if any(value.numel() != size for value in entry.values()):
-                sizes = sorted({value.numel() for value in entry.values()})
+            other = next((value.numel() for value in entry.values() if value.numel() != size), None)
+            if other is not None:
                 raise ValueError(
-                    f"skillret normalisation: the dataset's `{key}` has {sizes[0]} values per frame, the policy's "
+                    f"skillret normalisation: the dataset's `{key}` has {other} values per frame, the policy's "
                     f"{size}; {layout}."
                 )
             if mode is NormalizationMode.MEAN_STD:
