@@ -62,18 +62,21 @@ def main() -> None:
     )
     args = parser.parse_args()
     torch.set_num_threads(1)
-    result = oracle_success(
-        args.checkpoint,
-        args.demos,
-        args.task,
-        args.episodes,
-        args.slack,
-        args.align,
-        args.policy_every,
-        args.swap,
-        args.discrete_gripper,
-        args.trace,
-    )
+    try:
+        result = oracle_success(
+            args.checkpoint,
+            args.demos,
+            args.task,
+            args.episodes,
+            args.slack,
+            args.align,
+            args.policy_every,
+            args.swap,
+            args.discrete_gripper,
+            args.trace,
+        )
+    except (FileNotFoundError, ValueError, KeyError) as error:  # bad input: one line naming it, no traceback
+        parser.exit(2, f"oracle_skills: {error.args[0] if isinstance(error, KeyError) else error}\n")
     swapped = f" (each executing the latents of the demo {args.swap} on)" if args.swap else ""
     print(
         f"oracle-skill success: {result['success']:.0%} of {result['episodes']} demos{swapped}, sub-goals met "

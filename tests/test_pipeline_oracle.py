@@ -6,6 +6,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 import torch
 
 from lerobot_skillret.pipeline import oracle
@@ -87,6 +88,7 @@ def test_swap_starts_from_each_demo_and_executes_the_next_ones_latents(monkeypat
             "mean_action": torch.ones(1),
         },
     )
+    monkeypatch.setattr(oracle, "resolve_checkpoint", lambda checkpoint, *args, **kwargs: checkpoint)
     monkeypatch.setattr(oracle.SkillRetPolicy, "from_pretrained", lambda checkpoint: policy)
     monkeypatch.setattr(oracle.EpisodeColumns, "from_dataset", lambda repo_id, root: columns)
     monkeypatch.setattr(oracle, "WindowSampler", lambda columns, history, horizon: SimpleNamespace(gather=lambda a: a))
@@ -103,6 +105,21 @@ def test_swap_starts_from_each_demo_and_executes_the_next_ones_latents(monkeypat
         assert encoded == [firsts[s] + t for s in sources for t in (0, 5)], swap
     oracle.oracle_success(oracle.Path("x"), oracle.Path("demos"), "task", discrete_gripper=False, log=lambda *a: None)
     assert made == [True, True, True, False]  # the env gets the gripper option (rounded by default)
+
+
+def test_bad_checkpoints_and_tasks_are_named_before_anything_loads(tmp_path, monkeypatch) -> None:
+    """examples/oracle_skills.py ended in LeRobot's HFValidationError ("Repo id must use alphanumeric chars") for a
+    mistyped --checkpoint, or "config.json not found" for a run's checkpoint/last folder."""
+    monkeypatch.setattr(oracle.SkillRetPolicy, "from_pretrained", lambda *a: pytest.fail("loaded the model"))
+    with pytest.raises(FileNotFoundError, match=r"Checkpoint .*nowhere does not exist\. Pass a skillret"):
+        oracle.oracle_success(tmp_path / "nowhere", tmp_path, "setup_pan")
+    run = tmp_path / "run"
+    (run / "checkpoints" / "last" / "pretrained_model").mkdir(parents=True)
+    with pytest.raises(FileNotFoundError, match=r"is a training run's folder: pass its checkpoint"):
+        oracle.oracle_success(run, tmp_path, "setup_pan")
+    monkeypatch.setattr(oracle, "resolve_checkpoint", lambda checkpoint, *args, **kwargs: checkpoint)
+    with pytest.raises(KeyError, match="Unknown kitchen task 'setup_pann'"):
+        oracle.oracle_success(run, tmp_path, "setup_pann")
 
 
 def test_trace_reports_the_nearest_demo_step_and_goals_met_at_every_skill() -> None:

@@ -28,6 +28,7 @@ from lerobot_skillret.kitchen.observations import load_kitchen_meta
 from lerobot_skillret.kitchen.tasks import get_task
 from lerobot_skillret.pipeline.heldout import skill_starts
 from lerobot_skillret.policy.modeling_skillret import SkillRetPolicy
+from lerobot_skillret.retrieval.api import resolve_checkpoint
 
 
 @dataclass
@@ -117,6 +118,9 @@ def oracle_success(
     starts from demonstration i's initial state but executes the latents of demonstration i + swap (of the first
     `episodes`, wrapping around). `discrete_gripper`: the env rounds the gripper command to open / hold / close (its
     default). `trace`: log each rollout's nearest demonstration step and sub-goals met at every skill."""
+    hint = "Pass a skillret `pretrained_model` folder (stage 1 or 2), e.g. <run>/checkpoints/last/pretrained_model."
+    checkpoint = resolve_checkpoint(checkpoint, hint, needs="the oracle runs a skillret skill decoder")
+    get_task(task)  # an unknown task is named before the model and the demos load
     policy = SkillRetPolicy.from_pretrained(checkpoint).eval()
     config = policy.config
     if policy_every and config.stage != "policy":

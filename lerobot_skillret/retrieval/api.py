@@ -150,8 +150,19 @@ def retrieve(
     return _finish(result, output, report_dir, context)
 
 
-def resolve_checkpoint(path: str | Path) -> Path:
-    """The `pretrained_model` folder of a stage-1 checkpoint (a run's checkpoint folder is accepted too)."""
+STAGE1_HINT = (
+    "Pass the `pretrained_model` folder of a skills run, e.g. outputs/train/<run>/checkpoints/last/pretrained_model "
+    "(lerobot-train --policy.type=skillret --policy.stage=skills)."
+)
+
+
+def resolve_checkpoint(
+    path: str | Path,
+    hint: str = STAGE1_HINT,
+    needs: str = "retrieval needs the skill encoder of a `--policy.type=skillret` stage-1 run",
+) -> Path:
+    """The `pretrained_model` folder of a skillret checkpoint (a run's checkpoint folder is accepted too); `hint`
+    says which checkpoint to pass, `needs` why a skillret one."""
     path = Path(path)
     if (path / "pretrained_model").is_dir():
         path = path / "pretrained_model"
@@ -159,18 +170,11 @@ def resolve_checkpoint(path: str | Path) -> Path:
         raise FileNotFoundError(f"{path} is a training run's folder: pass its checkpoint {path / PRETRAINED}.")
     if not path.is_dir():
         state = "is a file, not a checkpoint folder" if path.exists() else "does not exist"
-        raise FileNotFoundError(
-            f"Stage-1 checkpoint {path} {state}. Pass the `pretrained_model` folder of a skills run, e.g. "
-            "outputs/train/<run>/checkpoints/last/pretrained_model (lerobot-train --policy.type=skillret "
-            "--policy.stage=skills)."
-        )
+        raise FileNotFoundError(f"Checkpoint {path} {state}. {hint}")
     checkpoint_fingerprint(path)  # raises a clear error when config.json or model.safetensors is missing
     kind = read_json(path / "config.json").get("type")
     if kind != "skillret":
-        raise ValueError(
-            f"{path} is a `{kind}` checkpoint, not a skillret one: retrieval needs the skill encoder of a "
-            "`--policy.type=skillret` stage-1 run."
-        )
+        raise ValueError(f"{path} is a `{kind}` checkpoint, not a skillret one: {needs}.")
     return path
 
 
