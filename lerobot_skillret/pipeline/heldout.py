@@ -79,18 +79,18 @@ def run_heldout(plan: Plan, runner: StageRunner, results_dir: Path | None) -> No
 
     Cells whose stage-2 run has not finished are left out; a stored score is reused while it covers the checkpoints
     the protocol evaluates. Scores are copied next to the cells' published eval JSONs in `results_dir`."""
-    trained = [c for c in plan.cells() if METHODS[c.method].is_skillret and plan.train_dir(c).is_dir()]
     cfg = plan.cfg
     if not any(METHODS[m].is_skillret for m in cfg.methods):
         raise ValueError(
             f"the config's methods {cfg.methods} hold no skillret variant to score (LeRobot baselines only)."
         )
+    trained = [c for c in plan.cells() if METHODS[c.method].is_skillret and plan.train_dir(c).is_dir()]
     if not trained:  # a mistyped --output_dir or a config of another run: say so rather than exit 0 with no score
         raise ValueError(
             f"no trained skillret-variant cell in {plan.root} (methods {cfg.methods}, tasks {cfg.tasks}, seeds "
             f"{cfg.seeds}): pass the config and --output_dir of a `skillret-pipeline run` that trained them."
         )
-    for task in plan.cfg.tasks:
+    for task in cfg.tasks:
         columns = None  # loaded only if a cell of the task needs scoring
         for cell in (c for c in trained if c.task == task):
             path, steps = plan.heldout_path(cell), [step for step, _ in plan.checkpoints(cell)]
